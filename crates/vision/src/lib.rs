@@ -1,6 +1,7 @@
 //! The front end (DESIGN §3): from encoded image bytes to faces with a box, 68 landmarks,
 //! a 224×224 crop and a resolution bucket each.
 //!
+//! * [`face`] — boxes, detections, landmarks and the detector / predictor traits.
 //! * [`decode`] — decoding with limits, EXIF orientation.
 //! * [`detect`] — Viola–Jones face detection on OpenCV cascade files.
 //! * [`landmarks`] — dlib's 68-point ensemble-of-regression-trees predictor.
@@ -9,6 +10,7 @@
 //! * [`pipeline`] — the whole front end: image → faces.
 
 pub mod crop;
+pub mod face;
 pub mod decode;
 pub mod detect;
 pub mod landmarks;
