@@ -1,1 +1,187 @@
-//! (being written)
+//! The whole front end (DESIGN §3): decoded image → detect → map each box onto the
+//! landmark model's box convention → 68 landmarks → square crop + resolution bucket per
+//! face. Faces whose crop would be smaller than 32 px are reported (box, landmarks,
+//! bucket `TooSmall`) but not cropped. Detector and landmarker are pluggable.
+//!
+//! The crop is taken around the tight box of the 68 landmarks (grown by 30 %, squared, as
+//! [`crop::crop_face`] does), not around the detector box, so that a face is framed the
+//! same way whichever detector found it.
+
+use image::RgbImage;
+
+use crate::crop::{self, Bucket, Crop};
+use crate::decode::{self, DecodeError, DecodeLimits};
+use crate::face::{Detection, FaceBox, FaceDetector, LandmarkPredictor, Landmarks, ModelRunError};
+use crate::landmarks::BoxCalibration;
+
+/// One face found by the front end.
+#[derive(Clone, Debug)]
+pub struct Face {
+    /// The detector's output, unchanged.
+    pub detection: Detection,
+    /// The box given to the landmark predictor (the detection box after calibration).
+    pub landmark_input_box: FaceBox,
+    /// 68 points, iBUG order, image pixels.
+    pub landmarks: Landmarks,
+    /// Tight box of the landmarks: what the crop is made from.
+    pub landmark_box: FaceBox,
+    pub bucket: Bucket,
+    /// `None` when the face is too small to reconstruct.
+    pub crop: Option<Crop>,
+}
+
+/// Why the front end failed on an image.
+#[derive(Debug, thiserror::Error)]
+pub enum FrontEndError {
+    #[error("cannot decode image: {0}")]
+    Decode(#[from] DecodeError),
+    #[error("face detection failed: {0}")]
+    Detect(ModelRunError),
+    #[error("landmark prediction failed: {0}")]
+    Landmarks(ModelRunError),
+}
+
+/// The configured front end.
+pub struct FrontEnd {
+    detector: Box<dyn FaceDetector>,
+    predictor: Box<dyn LandmarkPredictor>,
+    calibration: BoxCalibration,
+    /// Upper bound on faces processed per image (largest boxes first).
+    pub max_faces: usize,
+}
+
+impl FrontEnd {
+    /// A front end from any detector and predictor; boxes are passed on unchanged until
+    /// [`Self::with_calibration`] says otherwise.
+    pub fn new(detector: Box<dyn FaceDetector>, predictor: Box<dyn LandmarkPredictor>) -> Self {
+        FrontEnd { detector, predictor, calibration: BoxCalibration::identity(), max_faces: 64 }
+    }
+
+    pub fn with_calibration(mut self, calibration: BoxCalibration) -> Self {
+        self.calibration = calibration;
+        self
+    }
+
+    pub fn calibration(&self) -> &BoxCalibration {
+        &self.calibration
+    }
+
+    /// Decodes (with limits) and runs.
+    pub fn run_bytes(&self, bytes: &[u8], limits: &DecodeLimits) -> Result<(RgbImage, Vec<Face>), FrontEndError> {
+        let image = decode::decode_with_limits(bytes, limits)?;
+        let faces = self.run(&image)?;
+        Ok((image, faces))
+    }
+
+    /// Runs on a decoded image. Faces come largest first.
+    pub fn run(&self, image: &RgbImage) -> Result<Vec<Face>, FrontEndError> {
+        let mut detections = self.detector.detect(image).map_err(FrontEndError::Detect)?;
+        detections.retain(|d| {
+            let b = &d.face_box;
+            [b.x0, b.y0, b.x1, b.y1].iter().all(|v| v.is_finite()) && b.width() > 0.0 && b.height() > 0.0
+        });
+        detections.sort_by(|a, b| b.face_box.area().total_cmp(&a.face_box.area()));
+        detections.truncate(self.max_faces);
+        detections.into_iter().map(|d| self.face(image, d)).collect()
+    }
+
+    /// Landmarks, crop and bucket for one detection.
+    pub fn face(&self, image: &RgbImage, detection: Detection) -> Result<Face, FrontEndError> {
+        let landmark_input_box = self.calibration.apply(&detection.source, &detection.face_box);
+        let calibrated = Detection { face_box: landmark_input_box, ..detection.clone() };
+        let landmarks = self.predictor.predict(image, &calibrated).map_err(FrontEndError::Landmarks)?;
+        let landmark_box = bounding_box(&landmarks.points).unwrap_or(landmark_input_box);
+        let (_, _, side) = crop::crop_square(&landmark_box);
+        let bucket = Bucket::from_side(side);
+        let crop = (bucket != Bucket::TooSmall).then(|| crop::crop_face(image, &landmark_box));
+        Ok(Face { detection, landmark_input_box, landmarks, landmark_box, bucket, crop })
+    }
+}
+
+/// Tight box of a set of points (`None` when empty or not finite).
+pub fn bounding_box(points: &[[f32; 2]]) -> Option<FaceBox> {
+    let mut it = points.iter().filter(|p| p[0].is_finite() && p[1].is_finite());
+    let &[x, y] = it.next()?;
+    let mut b = FaceBox { x0: x, y0: y, x1: x, y1: y };
+    for &[x, y] in it {
+        b.x0 = b.x0.min(x);
+        b.y0 = b.y0.min(y);
+        b.x1 = b.x1.max(x);
+        b.y1 = b.y1.max(y);
+    }
+    Some(b)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A detector returning fixed boxes.
+    struct Fixed(Vec<Detection>);
+    impl FaceDetector for Fixed {
+        fn detect(&self, _: &RgbImage) -> Result<Vec<Detection>, ModelRunError> {
+            Ok(self.0.clone())
+        }
+    }
+    /// A predictor putting 68 points on the corners and centre of the box it is given.
+    struct Corners;
+    impl LandmarkPredictor for Corners {
+        fn predict(&self, _: &RgbImage, d: &Detection) -> Result<Landmarks, ModelRunError> {
+            let b = d.face_box;
+            let pts = [[b.x0, b.y0], [b.x1, b.y1], [b.x0, b.y1], [b.x1, b.y0]];
+            let points: Vec<[f32; 2]> = (0..68).map(|i| pts[i % 4]).collect();
+            Ok(Landmarks { confidence: vec![1.0; 68], points })
+        }
+    }
+    struct Failing;
+    impl LandmarkPredictor for Failing {
+        fn predict(&self, _: &RgbImage, _: &Detection) -> Result<Landmarks, ModelRunError> {
+            Err(ModelRunError { model: "failing".into(), message: "no".into() })
+        }
+    }
+
+    fn det(x0: f32, y0: f32, x1: f32, y1: f32, source: &str) -> Detection {
+        Detection { face_box: FaceBox { x0, y0, x1, y1 }, score: 1.0, source: source.into() }
+    }
+
+    #[test]
+    fn faces_are_calibrated_sorted_cropped_and_bucketed() {
+        let dets = vec![
+            det(10.0, 10.0, 30.0, 30.0, "a"),       // 20 px → crop side 26 → too small
+            det(100.0, 50.0, 300.0, 250.0, "b"),    // 200 px → after calibration 100 → 130
+            det(f32::NAN, 0.0, 1.0, 1.0, "a"),      // dropped
+        ];
+        let mut cal = BoxCalibration::identity();
+        cal.by_source.insert(
+            "b".into(),
+            crate::landmarks::box_convention::BoxMap { sw: 0.5, sh: 0.5, ..crate::landmarks::box_convention::BoxMap::IDENTITY },
+        );
+        let fe = FrontEnd::new(Box::new(Fixed(dets)), Box::new(Corners)).with_calibration(cal);
+        let img = RgbImage::new(400, 300);
+        let faces = fe.run(&img).unwrap();
+        assert_eq!(faces.len(), 2);
+        // largest first; its landmark box is the calibrated box (centre 200,150, side 100)
+        let f = &faces[0];
+        assert_eq!(f.landmark_input_box, FaceBox { x0: 150.0, y0: 100.0, x1: 250.0, y1: 200.0 });
+        assert_eq!(f.landmark_box, f.landmark_input_box);
+        assert_eq!(f.bucket, Bucket::B1); // side 1.3·100 = 130
+        let c = f.crop.as_ref().unwrap();
+        assert_eq!((c.image.width(), c.image.height()), (224, 224));
+        // the crop transform maps the landmark box centre to the crop centre
+        let q = c.transform.to_crop([200.0, 150.0]);
+        assert!((q[0] - 111.5).abs() < 1e-3 && (q[1] - 111.5).abs() < 1e-3, "{q:?}");
+        // the small face: reported, not cropped
+        assert_eq!(faces[1].bucket, Bucket::TooSmall);
+        assert!(faces[1].crop.is_none());
+        assert_eq!(faces[1].detection.face_box.x0, 10.0);
+    }
+
+    #[test]
+    fn predictor_errors_are_reported() {
+        let fe = FrontEnd::new(Box::new(Fixed(vec![det(0.0, 0.0, 50.0, 50.0, "a")])), Box::new(Failing));
+        assert!(matches!(fe.run(&RgbImage::new(64, 64)), Err(FrontEndError::Landmarks(_))));
+        let fe = FrontEnd::new(Box::new(Fixed(vec![])), Box::new(Failing));
+        assert!(fe.run(&RgbImage::new(64, 64)).unwrap().is_empty());
+        assert!(matches!(fe.run_bytes(b"garbage", &DecodeLimits::default()), Err(FrontEndError::Decode(_))));
+    }
+}
