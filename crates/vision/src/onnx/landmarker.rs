@@ -1,0 +1,219 @@
+//! [`OnnxLandmarker`]: a user's 68-point landmark model behind [`LandmarkPredictor`].
+
+use std::sync::Mutex;
+
+use image::RgbImage;
+use ort::session::Session;
+use ort::value::Tensor;
+
+use super::config::{OnnxLandmarkerConfig, PointUnits};
+use super::resample::{AxisMap, Grid, sample_nchw};
+use super::runtime::{ModelSource, load_session, model_label};
+use super::signature::{self, check_image_input, check_output, fmt_dims, read_output};
+use super::OnnxError;
+use crate::face::{Detection, FaceBox, LandmarkPredictor, Landmarks, ModelRunError};
+
+const ROLE: &str = "landmarker";
+/// iBUG 68-point layout.
+pub const POINTS: usize = 68;
+
+/// A 68-point landmark model run by ONNX Runtime; see the contract in [`crate::onnx`].
+pub struct OnnxLandmarker {
+    config: OnnxLandmarkerConfig,
+    label: String,
+    input_name: String,
+    /// Side of the square model input.
+    input_size: u32,
+    session: Mutex<Session>,
+}
+
+impl std::fmt::Debug for OnnxLandmarker {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("OnnxLandmarker").field("model", &self.label).field("input_size", &self.input_size).finish()
+    }
+}
+
+/// The square region of the photo the landmarker sees: top-left corner (photo position of
+/// the region's edge, pixel centres at integers) and side, in photo pixels.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct CropSquare {
+    pub left: f64,
+    pub top: f64,
+    pub side: f64,
+}
+
+impl CropSquare {
+    /// The box grown to `scale · max(width, height)` (extents in whole pixels,
+    /// `x1 − x0 + 1`), centred on the box centre moved by `shift · side`.
+    pub fn around(b: &FaceBox, scale: f32, shift: [f32; 2]) -> Option<Self> {
+        let ok = [b.x0, b.y0, b.x1, b.y1].iter().all(|v| v.is_finite()) && b.x1 >= b.x0 && b.y1 >= b.y0;
+        if !ok {
+            return None;
+        }
+        let (x0, y0, x1, y1) = (b.x0 as f64, b.y0 as f64, b.x1 as f64, b.y1 as f64);
+        let side = scale as f64 * (x1 - x0 + 1.0).max(y1 - y0 + 1.0);
+        let cx = 0.5 * (x0 + x1) + shift[0] as f64 * side;
+        let cy = 0.5 * (y0 + y1) + shift[1] as f64 * side;
+        side.is_finite().then_some(Self { left: cx - 0.5 * side, top: cy - 0.5 * side, side })
+    }
+
+    /// Sampling grid of an `n × n` input: input pixel `u` covers
+    /// `[left + u·side/n, left + (u+1)·side/n]`.
+    pub fn grid(&self, n: u32) -> Grid {
+        let a = self.side / n as f64;
+        Grid {
+            width: n as usize,
+            height: n as usize,
+            x: AxisMap { scale: a, offset: self.left + 0.5 * a },
+            y: AxisMap { scale: a, offset: self.top + 0.5 * a },
+        }
+    }
+
+    /// Crop-normalised point (0 = left/top edge, 1 = right/bottom edge) → photo position.
+    pub fn to_photo(&self, q: [f64; 2]) -> [f64; 2] {
+        [self.left + q[0] * self.side, self.top + q[1] * self.side]
+    }
+}
+
+impl OnnxLandmarker {
+    /// Loads `config.model` and checks it against the contract.
+    pub fn new(config: OnnxLandmarkerConfig) -> Result<Self, OnnxError> {
+        config.validate()?;
+        if config.model.as_os_str().is_empty() {
+            return Err(OnnxError::Config("landmarker config: `model` (the .onnx path) is missing".into()));
+        }
+        let label = model_label(&config.model);
+        let path = config.model.clone();
+        Self::build(config, ModelSource::File(&path), label)
+    }
+
+    /// Loads a model from memory (`config.model` is ignored); `label` names it in errors.
+    pub fn from_bytes(config: OnnxLandmarkerConfig, model: &[u8], label: &str) -> Result<Self, OnnxError> {
+        config.validate()?;
+        Self::build(config, ModelSource::Bytes(model), label.to_string())
+    }
+
+    fn build(config: OnnxLandmarkerConfig, source: ModelSource<'_>, label: String) -> Result<Self, OnnxError> {
+        let session = load_session(&config.runtime, source, &label)?;
+        let contract = |message: String| OnnxError::Contract { model: label.clone(), role: ROLE, message };
+        let inputs = signature::inputs(&session).map_err(contract)?;
+        let [input] = inputs.as_slice() else {
+            return Err(contract(format!(
+                "it has {} inputs ({}); the contract is one image input",
+                inputs.len(),
+                signature::names(inputs.iter().map(|d| d.name.as_str()))
+            )));
+        };
+        let (h, w) = check_image_input(input).map_err(contract)?;
+        let declared = fmt_dims(input.dims.as_deref().unwrap_or(&[]));
+        if h > 0 && w > 0 && h != w {
+            return Err(contract(format!("its input `{}` is {declared}; the contract needs a square crop", input.name)));
+        }
+        let fixed = h.max(w);
+        let input_size = match config.input_size {
+            Some(n) if fixed > 0 && n as i64 != fixed => {
+                return Err(contract(format!("input_size {n} disagrees with the declared input {declared}")));
+            }
+            Some(n) => n,
+            None if h > 0 && w > 0 => fixed as u32,
+            None => {
+                return Err(contract(format!(
+                    "its input `{}` ({declared}) has a dynamic size; set `input_size` in the config",
+                    input.name
+                )));
+            }
+        };
+        let p = POINTS as i64;
+        let points = signature::output(&session, &config.points_output).map_err(contract)?;
+        check_output(&points, &[&[1, p, 2], &[p, 2], &[1, 2 * p]], "[1, 68, 2], [68, 2] or [1, 136]").map_err(contract)?;
+        if let Some(name) = &config.confidence_output {
+            let conf = signature::output(&session, name).map_err(contract)?;
+            check_output(&conf, &[&[1, p], &[p]], "[1, 68] or [68]").map_err(contract)?;
+        }
+        Ok(Self { input_name: input.name.clone(), input_size, label, session: Mutex::new(session), config })
+    }
+
+    pub fn config(&self) -> &OnnxLandmarkerConfig {
+        &self.config
+    }
+
+    /// Side of the square model input.
+    pub fn input_size(&self) -> u32 {
+        self.input_size
+    }
+
+    fn err(&self, message: String) -> ModelRunError {
+        ModelRunError { model: format!("onnx landmarker {}", self.label), message }
+    }
+}
+
+impl LandmarkPredictor for OnnxLandmarker {
+    fn predict(&self, image: &RgbImage, face: &Detection) -> Result<Landmarks, ModelRunError> {
+        let crop = CropSquare::around(&face.face_box, self.config.crop_scale, self.config.crop_shift)
+            .ok_or_else(|| self.err(format!("invalid face box {:?}", face.face_box)))?;
+        let n = self.input_size;
+        let mut tensor = Vec::new();
+        sample_nchw(image, &crop.grid(n), &self.config.pixels, &mut tensor);
+        let value = Tensor::from_array(([1usize, 3, n as usize, n as usize], tensor)).map_err(|e| self.err(e.to_string()))?;
+        let mut session = self.session.lock().unwrap_or_else(|p| p.into_inner());
+        let outputs = session
+            .run(ort::inputs![self.input_name.as_str() => value])
+            .map_err(|e| self.err(format!("inference failed: {e}")))?;
+        let (shape, data) = read_output(&outputs, &self.config.points_output).map_err(|m| self.err(m))?;
+        let p = POINTS as i64;
+        if !matches!(shape.as_slice(), [1, a, 2] | [a, 2] if *a == p) && shape.as_slice() != [1, 2 * p] {
+            return Err(self.err(format!(
+                "points output has shape {}, the contract needs [1, 68, 2], [68, 2] or [1, 136]",
+                fmt_dims(&shape)
+            )));
+        }
+        let points = data
+            .chunks_exact(2)
+            .map(|q| {
+                let q = [q[0] as f64, q[1] as f64];
+                let q = match self.config.point_units {
+                    PointUnits::Normalized => q,
+                    PointUnits::Pixels => [(q[0] + 0.5) / n as f64, (q[1] + 0.5) / n as f64],
+                };
+                let [x, y] = crop.to_photo(q);
+                [x as f32, y as f32]
+            })
+            .collect();
+        let confidence = match &self.config.confidence_output {
+            None => vec![1.0; POINTS],
+            Some(name) => {
+                let (shape, data) = read_output(&outputs, name).map_err(|m| self.err(m))?;
+                if !matches!(shape.as_slice(), [1, a] | [a] if *a == p) {
+                    return Err(self.err(format!("confidence output has shape {}, the contract needs [1, 68] or [68]", fmt_dims(&shape))));
+                }
+                if let Some(v) = data.iter().find(|v| !(0.0..=1.0).contains(*v)) {
+                    return Err(self.err(format!("confidence {v} is outside [0, 1] (put the sigmoid inside the model)")));
+                }
+                data.to_vec()
+            }
+        };
+        Ok(Landmarks { points, confidence })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn crop_square_grows_the_pixel_extent_and_maps_back() {
+        // Box over pixels 10..=29 × 20..=59: extents 20 × 40, centre (19.5, 39.5).
+        let b = FaceBox { x0: 10.0, y0: 20.0, x1: 29.0, y1: 59.0 };
+        let c = CropSquare::around(&b, 1.5, [0.0, 0.0]).unwrap();
+        assert_eq!(c, CropSquare { left: 19.5 - 30.0, top: 39.5 - 30.0, side: 60.0 });
+        assert_eq!(c.to_photo([0.5, 0.5]), [19.5, 39.5]);
+        // 60 photo px over 12 input px: input pixel 0 samples the centre of the first 5 px.
+        let g = c.grid(12);
+        assert_eq!(g.x.scale, 5.0);
+        assert_eq!(g.x.to_image(0.0), -10.5 + 2.5);
+        let shifted = CropSquare::around(&b, 1.0, [0.0, 0.25]).unwrap();
+        assert_eq!((shifted.left, shifted.top, shifted.side), (19.5 - 20.0, 39.5 + 10.0 - 20.0, 40.0));
+        assert!(CropSquare::around(&FaceBox { x0: 5.0, y0: 0.0, x1: 4.0, y1: 1.0 }, 1.3, [0.0; 2]).is_none());
+        assert!(CropSquare::around(&FaceBox { x0: f32::NAN, y0: 0.0, x1: 4.0, y1: 1.0 }, 1.3, [0.0; 2]).is_none());
+    }
+}
