@@ -238,7 +238,8 @@ impl MorphableModel {
     pub fn vertex_uvs(&self) -> &[[f32; 2]] {
         &self.vertex_uvs
     }
-    /// 68 landmark vertex indices (iBUG order), all inside the face area.
+    /// 68 landmark vertex indices (iBUG order), all inside the face area; empty for a model
+    /// imported without landmark annotations (BFM without a landmark file).
     pub fn landmarks(&self) -> &[u32] {
         &self.parts.landmarks
     }
