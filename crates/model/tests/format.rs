@@ -373,3 +373,13 @@ fn models_without_landmarks_are_valid() {
     let m = MorphableModel::from_bytes(&b).unwrap();
     assert!(m.landmarks().is_empty());
 }
+
+/// Writes seed inputs for the `model_file` fuzz target (crates/model/fuzz/corpus/model_file).
+/// Run: `cargo test -p facerecon-model --test format -- --ignored write_fuzz_seed`.
+#[test]
+#[ignore = "writes the fuzz seed corpus; run by hand before `cargo fuzz run model_file`"]
+fn write_fuzz_seed() {
+    let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/fuzz/corpus/model_file");
+    std::fs::create_dir_all(dir).unwrap();
+    std::fs::write(format!("{dir}/tiny.safetensors"), tiny().to_bytes().unwrap()).unwrap();
+}

@@ -257,3 +257,53 @@ fn albedo_model_is_plausible_symmetric_and_orthogonal() {
     let a = m.albedo(&c, Extent::Face).unwrap();
     assert!(a.iter().flatten().all(|x| (-0.1..1.1).contains(x)));
 }
+
+#[test]
+fn shape_and_albedo_with_many_modes_match_a_naive_sum() {
+    let m = ict::load_default().unwrap();
+    let l = m.layout();
+    // Dense and gappy weights (exercise the grouped and remainder paths).
+    let id: Vec<f32> = (0..l.identity)
+        .map(|k| {
+            if k % 9 == 4 {
+                0.0
+            } else {
+                ((k * 37 % 17) as f32 - 8.0) * 0.2
+            }
+        })
+        .collect();
+    let ex: Vec<f32> = (0..l.expression)
+        .map(|k| {
+            if k % 3 == 0 {
+                0.0
+            } else {
+                (k * 13 % 10) as f32 * 0.1
+            }
+        })
+        .collect();
+    let tex: Vec<f32> = (0..l.albedo)
+        .map(|k| ((k * 7 % 11) as f32 - 5.0) * 0.3)
+        .collect();
+    let got = m.shape(&id, &ex, Extent::Face).unwrap();
+    let alb = m.albedo(&tex, Extent::Full).unwrap();
+    let nf = m.face_vertex_count();
+    for v in (0..nf).step_by(97) {
+        for c in 0..3 {
+            let mut s = m.mean_shape()[v][c] as f64;
+            for (k, w) in id.iter().enumerate() {
+                s += *w as f64 * m.identity_mode(k)[v][c] as f64;
+            }
+            for (k, w) in ex.iter().enumerate() {
+                s += *w as f64 * m.expression_mode(k)[v][c] as f64;
+            }
+            assert!((got[v][c] as f64 - s).abs() < 1e-3, "vertex {v}");
+            let mut a = m.mean_albedo()[v][c] as f64;
+            for (k, w) in tex.iter().enumerate() {
+                a += *w as f64 * m.albedo_mode(k)[v][c] as f64;
+            }
+            assert!((alb[v][c] as f64 - a).abs() < 1e-5, "albedo vertex {v}");
+        }
+    }
+    // Outside the face area the albedo is the region's constant.
+    assert_eq!(alb[nf + 10], m.mean_albedo()[nf + 10]);
+}
