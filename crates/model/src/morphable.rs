@@ -238,7 +238,8 @@ impl MorphableModel {
     pub fn vertex_uvs(&self) -> &[[f32; 2]] {
         &self.vertex_uvs
     }
-    /// 68 landmark vertex indices (iBUG order), all inside the face area.
+    /// 68 landmark vertex indices (iBUG order), all inside the face area; empty for a model
+    /// imported without landmark annotations (BFM without a landmark file).
     pub fn landmarks(&self) -> &[u32] {
         &self.parts.landmarks
     }
@@ -372,18 +373,41 @@ impl MorphableModel {
 }
 
 /// `acc += Σ_k w_k · basis[k]`, each mode a contiguous run of `stride` floats of which the
-/// first `acc.len()` are used. Zero weights are skipped (sparse expressions are common).
+/// first `acc.len()` are used. Zero weights are skipped (sparse expressions are common), and
+/// the remaining modes are applied four at a time so that the accumulator is read and
+/// written once per four streamed modes (the bases are the memory traffic that matters).
 fn accumulate(acc: &mut [f32], basis: &[f32], stride: usize, w: &[f32]) {
     let n = acc.len();
+    let mode = |k: usize| &basis[k * stride..k * stride + n];
+    let mut group = [(0usize, 0.0f32); 4];
+    let mut len = 0;
+    let flush = |acc: &mut [f32], group: &[(usize, f32)]| match *group {
+        [(a, wa), (b, wb), (c, wc), (d, wd)] => {
+            let (ma, mb, mc, md) = (mode(a), mode(b), mode(c), mode(d));
+            for i in 0..n {
+                acc[i] += wa * ma[i] + wb * mb[i] + wc * mc[i] + wd * md[i];
+            }
+        }
+        _ => {
+            for &(k, wk) in group {
+                for (x, b) in acc.iter_mut().zip(mode(k)) {
+                    *x += wk * *b;
+                }
+            }
+        }
+    };
     for (k, &wk) in w.iter().enumerate() {
         if wk == 0.0 {
             continue;
         }
-        let mode = &basis[k * stride..k * stride + n];
-        for (a, b) in acc.iter_mut().zip(mode) {
-            *a += wk * *b;
+        group[len] = (k, wk);
+        len += 1;
+        if len == 4 {
+            flush(acc, &group);
+            len = 0;
         }
     }
+    flush(acc, &group[..len]);
 }
 
 fn vertex_uvs(parts: &ModelParts) -> Vec<[f32; 2]> {
