@@ -157,16 +157,16 @@ fn raster_triangle(
             }
             let z = l[0] * zn[0] + l[1] * zn[1] + l[2] * zn[2];
             let i = vb.index(x, y);
-            if !(z < zbuf[i]) {
+            if z.is_nan() || z >= zbuf[i] {
                 continue;
             }
             // Perspective correction, then back to the original triangle's corners.
             let q = [l[0] * iw[0], l[1] * iw[1], l[2] * iw[2]];
             let qs = q[0] + q[1] + q[2];
             let mut b = [0.0; 3];
-            for k in 0..3 {
-                for j in 0..3 {
-                    b[j] += q[k] / qs * v[k].b[j];
+            for (qk, vk) in q.iter().zip(v) {
+                for (bj, vbj) in b.iter_mut().zip(vk.b) {
+                    *bj += qk / qs * vbj;
                 }
             }
             zbuf[i] = z;

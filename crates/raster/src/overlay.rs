@@ -24,9 +24,9 @@ pub fn overlay(photo: &RgbImage, frame: &Frame, opacity: f32) -> Result<RgbImage
     for (i, px) in out.pixels_mut().enumerate() {
         if frame.visibility.covered(i) {
             let c = frame.color[i];
-            for k in 0..3 {
-                let v = (1.0 - opacity) * px.0[k] as f32 + opacity * c[k] as f32;
-                px.0[k] = (v + 0.5).floor().clamp(0.0, 255.0) as u8;
+            for (p, &r) in px.0.iter_mut().zip(&c[..3]) {
+                let v = (1.0 - opacity) * *p as f32 + opacity * r as f32;
+                *p = (v + 0.5).floor().clamp(0.0, 255.0) as u8;
             }
         }
     }

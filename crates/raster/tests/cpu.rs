@@ -4,7 +4,7 @@
 mod common;
 
 use common::*;
-use facerecon_model::scene::{Camera, SH_COEFFS, sh_index, sh_shading, shade, vertex_normals};
+use facerecon_model::scene::{Camera, sh_shading, shade, vertex_normals};
 use facerecon_raster::{BACKGROUND, RenderError, RenderJob, cpu, overlay};
 
 #[test]
@@ -126,60 +126,6 @@ fn bad_input_is_an_error_not_a_panic() {
     })
     .unwrap();
     assert_eq!(vb.coverage(), 0);
-}
-
-/// UV sphere of radius `r` at `center` with exact (analytic) vertex normals.
-pub fn sphere(
-    r: f32,
-    center: [f32; 3],
-    rings: usize,
-    segs: usize,
-) -> (Vec<[f32; 3]>, Vec<[u32; 3]>, Vec<[f32; 3]>) {
-    let mut dirs = vec![[0.0, 0.0, 1.0]];
-    for i in 1..rings {
-        let th = std::f32::consts::PI * i as f32 / rings as f32;
-        for j in 0..segs {
-            let ph = 2.0 * std::f32::consts::PI * j as f32 / segs as f32;
-            dirs.push([th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos()]);
-        }
-    }
-    dirs.push([0.0, 0.0, -1.0]);
-    let south = (dirs.len() - 1) as u32;
-    let v = |i: usize, j: usize| (1 + (i - 1) * segs + j % segs) as u32;
-    let mut t = Vec::new();
-    for j in 0..segs {
-        t.push([0, v(1, j), v(1, j + 1)]);
-        t.push([south, v(rings - 1, j + 1), v(rings - 1, j)]);
-    }
-    for i in 1..rings - 1 {
-        for j in 0..segs {
-            t.push([v(i, j), v(i + 1, j), v(i + 1, j + 1)]);
-            t.push([v(i, j), v(i + 1, j + 1), v(i, j + 1)]);
-        }
-    }
-    let p = dirs
-        .iter()
-        .map(|d| {
-            [
-                center[0] + r * d[0],
-                center[1] + r * d[1],
-                center[2] + r * d[2],
-            ]
-        })
-        .collect();
-    (p, t, dirs)
-}
-
-/// A light with bands 0–2, different per channel, shading within (0.15, 1) on the sphere.
-pub fn test_light() -> [[f32; 3]; SH_COEFFS] {
-    let mut w = [[0.0; 3]; SH_COEFFS];
-    w[0] = [2.0, 1.8, 1.6];
-    w[sh_index(1, 0)] = [0.5, 0.4, 0.6]; // towards the camera (+Z)
-    w[sh_index(1, 1)] = [0.3, -0.2, 0.1];
-    w[sh_index(1, -1)] = [0.2, 0.25, -0.15];
-    w[sh_index(2, 0)] = [-0.1, 0.05, 0.1];
-    w[sh_index(2, -2)] = [0.1, 0.0, -0.05];
-    w
 }
 
 /// Compares a rendered sphere with analytic shading at each pixel's ray–sphere hit.

@@ -154,9 +154,9 @@ fn bary_diff(job: &RenderJob, tri: u32, a: [f32; 2], b: [f32; 2]) -> (f32, f32) 
 fn gpu_shaded_sphere_matches_cpu_and_bad_input_is_an_error() {
     let mut r = renderer(Batching::Atlas);
     let (rr, c) = (60.0, [10.0, -5.0, -400.0]);
-    let (p, t, n) = sphere_mesh(rr, c);
+    let (p, t, n) = sphere(rr, c, 48, 96);
     let albedo = [0.8, 0.6, 0.5];
-    let colors = shade(&vec![albedo; p.len()], &n, &light());
+    let colors = shade(&vec![albedo; p.len()], &n, &test_light());
     let job = RenderJob {
         positions: &p,
         triangles: &t,
@@ -222,55 +222,4 @@ fn gpu_shaded_sphere_matches_cpu_and_bad_input_is_an_error() {
     assert!(r.render(&[]).unwrap().is_empty());
     let again = r.render(&[job]).unwrap().remove(0);
     assert!(again == g);
-}
-
-fn sphere_mesh(r: f32, c: [f32; 3]) -> (Vec<[f32; 3]>, Vec<[u32; 3]>, Vec<[f32; 3]>) {
-    let s = dome_sphere(r, c);
-    (s.0, s.1, s.2)
-}
-
-/// UV sphere with analytic normals (the same construction as the CPU sphere test).
-fn dome_sphere(r: f32, center: [f32; 3]) -> (Vec<[f32; 3]>, Vec<[u32; 3]>, Vec<[f32; 3]>) {
-    let (rings, segs) = (48, 96);
-    let mut dirs = vec![[0.0, 0.0, 1.0]];
-    for i in 1..rings {
-        let th = std::f32::consts::PI * i as f32 / rings as f32;
-        for j in 0..segs {
-            let ph = 2.0 * std::f32::consts::PI * j as f32 / segs as f32;
-            dirs.push([th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos()]);
-        }
-    }
-    dirs.push([0.0, 0.0, -1.0]);
-    let south = (dirs.len() - 1) as u32;
-    let v = |i: usize, j: usize| (1 + (i - 1) * segs + j % segs) as u32;
-    let mut t = Vec::new();
-    for j in 0..segs {
-        t.push([0, v(1, j), v(1, j + 1)]);
-        t.push([south, v(rings - 1, j + 1), v(rings - 1, j)]);
-    }
-    for i in 1..rings - 1 {
-        for j in 0..segs {
-            t.push([v(i, j), v(i + 1, j), v(i + 1, j + 1)]);
-            t.push([v(i, j), v(i + 1, j + 1), v(i, j + 1)]);
-        }
-    }
-    let p = dirs
-        .iter()
-        .map(|d| {
-            [
-                center[0] + r * d[0],
-                center[1] + r * d[1],
-                center[2] + r * d[2],
-            ]
-        })
-        .collect();
-    (p, t, dirs)
-}
-
-fn light() -> [[f32; 3]; 25] {
-    let mut w = [[0.0; 3]; 25];
-    w[0] = [2.0, 1.8, 1.6];
-    w[2] = [0.5, 0.4, 0.6];
-    w[3] = [0.3, -0.2, 0.1];
-    w
 }

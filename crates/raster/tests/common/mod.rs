@@ -1,7 +1,7 @@
 //! Test meshes and the brute-force visibility oracle shared by the renderer tests.
-#![allow(dead_code)]
+#![allow(dead_code, clippy::needless_range_loop)]
 
-use facerecon_model::scene::{Camera, vertex_normals};
+use facerecon_model::scene::{Camera, SH_COEFFS, sh_index, vertex_normals};
 use facerecon_raster::{BACKGROUND, RenderJob, VisibilityBuffer};
 
 /// Deterministic LCG in [0, 1).
@@ -240,7 +240,7 @@ pub fn oracle(job: &RenderJob) -> Oracle {
                 }) = ray_hit(job, clip, x, y)
                 {
                     match best {
-                        Some((_, _, bz, _)) if !(z < bz) => second = second.min(z),
+                        Some((_, _, bz, _)) if z >= bz => second = second.min(z),
                         _ => {
                             if let Some((_, _, bz, _)) = best {
                                 second = second.min(bz);
@@ -276,6 +276,10 @@ pub fn margin_of(job: &RenderJob, t: u32, x: u32, y: u32) -> f64 {
         .unwrap_or(0.0)
 }
 
+/// Disagreeing pixels `(x, y, oracle id, got id)`, the largest barycentric difference
+/// where they agree, and the number of decisive pixels compared.
+pub type Comparison = (Vec<(u32, u32, u32, u32)>, f32, usize);
+
 /// Pixels where `got` disagrees with the oracle although the oracle's answer is decisive
 /// (edge margins of both candidates > `tol_px`, depth gap > `tol_z`), and the largest
 /// barycentric difference where they agree.
@@ -285,7 +289,7 @@ pub fn compare(
     got: &VisibilityBuffer,
     tol_px: f64,
     tol_z: f64,
-) -> (Vec<(u32, u32, u32, u32)>, f32, usize) {
+) -> Comparison {
     let mut bad = Vec::new();
     let mut max_bary = 0f32;
     let mut compared = 0;
@@ -310,4 +314,56 @@ pub fn compare(
         }
     }
     (bad, max_bary, compared)
+}
+
+/// Positions, triangles, normals.
+pub type Mesh = (Vec<[f32; 3]>, Vec<[u32; 3]>, Vec<[f32; 3]>);
+
+/// UV sphere of radius `r` at `center` with exact (analytic) vertex normals.
+pub fn sphere(r: f32, center: [f32; 3], rings: usize, segs: usize) -> Mesh {
+    let mut dirs = vec![[0.0, 0.0, 1.0]];
+    for i in 1..rings {
+        let th = std::f32::consts::PI * i as f32 / rings as f32;
+        for j in 0..segs {
+            let ph = 2.0 * std::f32::consts::PI * j as f32 / segs as f32;
+            dirs.push([th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos()]);
+        }
+    }
+    dirs.push([0.0, 0.0, -1.0]);
+    let south = (dirs.len() - 1) as u32;
+    let v = |i: usize, j: usize| (1 + (i - 1) * segs + j % segs) as u32;
+    let mut t = Vec::new();
+    for j in 0..segs {
+        t.push([0, v(1, j), v(1, j + 1)]);
+        t.push([south, v(rings - 1, j + 1), v(rings - 1, j)]);
+    }
+    for i in 1..rings - 1 {
+        for j in 0..segs {
+            t.push([v(i, j), v(i + 1, j), v(i + 1, j + 1)]);
+            t.push([v(i, j), v(i + 1, j + 1), v(i, j + 1)]);
+        }
+    }
+    let p = dirs
+        .iter()
+        .map(|d| {
+            [
+                center[0] + r * d[0],
+                center[1] + r * d[1],
+                center[2] + r * d[2],
+            ]
+        })
+        .collect();
+    (p, t, dirs)
+}
+
+/// A light with bands 0–2, different per channel, shading within (0.15, 1) on the sphere.
+pub fn test_light() -> [[f32; 3]; SH_COEFFS] {
+    let mut w = [[0.0; 3]; SH_COEFFS];
+    w[0] = [2.0, 1.8, 1.6];
+    w[sh_index(1, 0)] = [0.5, 0.4, 0.6]; // towards the camera (+Z)
+    w[sh_index(1, 1)] = [0.3, -0.2, 0.1];
+    w[sh_index(1, -1)] = [0.2, 0.25, -0.15];
+    w[sh_index(2, 0)] = [-0.1, 0.05, 0.1];
+    w[sh_index(2, -2)] = [0.1, 0.0, -0.05];
+    w
 }
