@@ -1,0 +1,414 @@
+//! The morphable model in memory ([`MorphableModel`]) and its description ([`ModelMeta`]):
+//! shape `S = s̄ + Us·ws + Ue·we` (Eq. 2.11) and albedo `A = ā + Ut·wt` (Eq. 2.4), evaluated
+//! for the face area or for the full rendering mesh, and turned into a [`Mesh`].
+//!
+//! Conventions every consumer relies on:
+//! * units are mm, the face looks down +Z, Y is up;
+//! * the **face area is a prefix**: vertices `0..face_vertex_count`, triangles
+//!   `0..face_triangle_count`. Fitting, losses and outputs use the face area; synthetic
+//!   rendering uses all vertices (the full head, coloured per region);
+//! * bases are mode-major (`[K, N, 3]`, a mode is one contiguous run of `3N` floats), so a
+//!   shape is a sum of axpys over contiguous memory; the albedo basis covers only the face
+//!   area (other regions have a constant colour in the mean albedo).
+
+use crate::coeffs::{CoeffLayout, Coefficients};
+use crate::error::ModelError;
+use crate::mesh::Mesh;
+
+/// Version of the file layout written by [`MorphableModel::save`].
+pub const FORMAT_VERSION: u32 = 1;
+
+/// Largest |w| accepted for a coefficient with a Gaussian prior (in standard deviations).
+/// N(0,1) draws beyond 10σ have probability < 1e-22: such values are a caller's bug.
+pub const GAUSSIAN_BOUND: f32 = 10.0;
+
+/// Slack around [0, 1] accepted for blendshape weights: `[-0.5, 1.5]`. Optimisers may
+/// overshoot a little (the range prior pulls them back); further out is a caller's bug.
+pub const BLENDSHAPE_SLACK: f32 = 0.5;
+
+/// Prior of a coefficient block.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Prior {
+    /// `w ~ N(0, 1)`, the basis columns are pre-scaled by their standard deviation.
+    Gaussian,
+    /// Blendshape weights in `[0, 1]`, the basis columns are `target − neutral`.
+    Blendshape,
+}
+
+impl Prior {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Prior::Gaussian => "gaussian",
+            Prior::Blendshape => "blendshape",
+        }
+    }
+    pub fn parse(s: &str) -> Option<Self> {
+        match s {
+            "gaussian" => Some(Prior::Gaussian),
+            "blendshape" => Some(Prior::Blendshape),
+            _ => None,
+        }
+    }
+    fn range(self) -> &'static str {
+        match self {
+            Prior::Gaussian => "[-10, 10] (gaussian prior, in σ)",
+            Prior::Blendshape => "[-0.5, 1.5] (blendshape weights in [0,1] with slack)",
+        }
+    }
+    fn accepts(self, w: f32) -> bool {
+        match self {
+            Prior::Gaussian => w.abs() <= GAUSSIAN_BOUND,
+            Prior::Blendshape => (-BLENDSHAPE_SLACK..=1.0 + BLENDSHAPE_SLACK).contains(&w),
+        }
+    }
+}
+
+/// A coefficient block: how many modes and which prior.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Block {
+    pub count: usize,
+    pub prior: Prior,
+}
+
+/// The self-description stored in a model file's header.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ModelMeta {
+    pub name: String,
+    /// Where the data came from (e.g. the upstream repository and commit).
+    pub source: String,
+    pub licence: String,
+    /// Always `"mm"` for files this crate writes or accepts.
+    pub units: String,
+    pub format_version: u32,
+    pub identity: Block,
+    pub expression: Block,
+    pub albedo: Block,
+    /// One name per expression mode (ARKit names for ICT), or empty when the modes are PCA.
+    pub expression_names: Vec<String>,
+    /// Name of each region id used in [`MorphableModel::region_ids`].
+    pub region_names: Vec<String>,
+    pub vertex_count: usize,
+    pub triangle_count: usize,
+    pub face_vertex_count: usize,
+    pub face_triangle_count: usize,
+}
+
+impl ModelMeta {
+    pub fn layout(&self) -> CoeffLayout {
+        CoeffLayout {
+            identity: self.identity.count,
+            expression: self.expression.count,
+            albedo: self.albedo.count,
+        }
+    }
+}
+
+/// Which part of the mesh to evaluate.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Extent {
+    /// Vertices `0..face_vertex_count` (fitting, losses, outputs).
+    Face,
+    /// Every vertex (synthetic rendering: face, head and neck, sockets, teeth, eyeballs).
+    Full,
+}
+
+/// Named vertex masks (each a 0/1 byte per vertex of the full mesh).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Mask {
+    Face,
+    NarrowFace,
+    Eyes,
+    Mouth,
+    NoseTip,
+}
+
+impl Mask {
+    pub const ALL: [Mask; 5] = [
+        Mask::Face,
+        Mask::NarrowFace,
+        Mask::Eyes,
+        Mask::Mouth,
+        Mask::NoseTip,
+    ];
+    /// Tensor name in the file (`mask.<name>`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Mask::Face => "face",
+            Mask::NarrowFace => "narrow_face",
+            Mask::Eyes => "eyes",
+            Mask::Mouth => "mouth",
+            Mask::NoseTip => "nose_tip",
+        }
+    }
+}
+
+/// A loaded, validated morphable model. Construct with [`MorphableModel::load`],
+/// [`MorphableModel::from_bytes`], an importer, or [`MorphableModel::from_parts`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct MorphableModel {
+    pub(crate) meta: ModelMeta,
+    pub(crate) parts: ModelParts,
+    /// One UV per vertex (the first corner that references it; seams keep one side).
+    pub(crate) vertex_uvs: Vec<[f32; 2]>,
+}
+
+/// The raw arrays of a model, as stored in the file (all flattened row-major).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ModelParts {
+    /// `[N, 3]`, mm.
+    pub mean_shape: Vec<f32>,
+    /// `[K_id, N, 3]`, pre-scaled by σ for a Gaussian prior.
+    pub identity_basis: Vec<f32>,
+    /// `[K_exp, N, 3]`.
+    pub expression_basis: Vec<f32>,
+    /// `[N, 3]`, linear RGB in [0, 1].
+    pub mean_albedo: Vec<f32>,
+    /// `[K_tex, face_vertex_count, 3]`, pre-scaled by √λ.
+    pub albedo_basis: Vec<f32>,
+    /// `[T, 3]`, counter-clockwise seen from outside.
+    pub triangles: Vec<[u32; 3]>,
+    /// `[N_uv, 2]`.
+    pub uvs: Vec<[f32; 2]>,
+    /// `[T, 3]` indices into `uvs`, parallel to `triangles`.
+    pub uv_triangles: Vec<[u32; 3]>,
+    /// 68 vertex indices, iBUG 300-W / Multi-PIE order.
+    pub landmarks: Vec<u32>,
+    /// Left/right mirror of each vertex.
+    pub symmetry: Vec<u32>,
+    /// Region id per vertex, an index into `ModelMeta::region_names`.
+    pub region_ids: Vec<u8>,
+    /// One 0/1 byte per vertex for each of [`Mask::ALL`], in that order.
+    pub masks: [Vec<u8>; 5],
+}
+
+impl MorphableModel {
+    /// Validates and assembles a model (what importers call).
+    pub fn from_parts(meta: ModelMeta, parts: ModelParts) -> Result<Self, ModelError> {
+        crate::format::validate(&meta, &parts)?;
+        let vertex_uvs = vertex_uvs(&parts);
+        Ok(Self {
+            meta,
+            parts,
+            vertex_uvs,
+        })
+    }
+
+    pub fn meta(&self) -> &ModelMeta {
+        &self.meta
+    }
+    pub fn parts(&self) -> &ModelParts {
+        &self.parts
+    }
+    pub fn layout(&self) -> CoeffLayout {
+        self.meta.layout()
+    }
+    pub fn vertex_count(&self) -> usize {
+        self.meta.vertex_count
+    }
+    pub fn face_vertex_count(&self) -> usize {
+        self.meta.face_vertex_count
+    }
+    pub fn face_triangle_count(&self) -> usize {
+        self.meta.face_triangle_count
+    }
+    /// Vertex count of an extent.
+    pub fn extent_vertices(&self, extent: Extent) -> usize {
+        match extent {
+            Extent::Face => self.meta.face_vertex_count,
+            Extent::Full => self.meta.vertex_count,
+        }
+    }
+    /// All triangles (the face area is the prefix `..face_triangle_count`).
+    pub fn triangles(&self) -> &[[u32; 3]] {
+        &self.parts.triangles
+    }
+    /// Triangles of an extent.
+    pub fn extent_triangles(&self, extent: Extent) -> &[[u32; 3]] {
+        match extent {
+            Extent::Face => &self.parts.triangles[..self.meta.face_triangle_count],
+            Extent::Full => &self.parts.triangles,
+        }
+    }
+    /// UV coordinates as authored (split at seams) and their triangles.
+    pub fn uvs(&self) -> (&[[f32; 2]], &[[u32; 3]]) {
+        (&self.parts.uvs, &self.parts.uv_triangles)
+    }
+    /// One UV per vertex (seam vertices keep the UV of the first triangle corner using them).
+    pub fn vertex_uvs(&self) -> &[[f32; 2]] {
+        &self.vertex_uvs
+    }
+    /// 68 landmark vertex indices (iBUG order), all inside the face area; empty for a model
+    /// imported without landmark annotations (BFM without a landmark file).
+    pub fn landmarks(&self) -> &[u32] {
+        &self.parts.landmarks
+    }
+    /// Mirror vertex of each vertex (x → −x).
+    pub fn symmetry(&self) -> &[u32] {
+        &self.parts.symmetry
+    }
+    /// Region id per vertex; names in [`ModelMeta::region_names`].
+    pub fn region_ids(&self) -> &[u8] {
+        &self.parts.region_ids
+    }
+    /// A 0/1 mask over all vertices.
+    pub fn mask(&self, mask: Mask) -> &[u8] {
+        let i = Mask::ALL.iter().position(|m| *m == mask).unwrap_or(0);
+        &self.parts.masks[i]
+    }
+    /// Mean shape, `[N]` positions in mm.
+    pub fn mean_shape(&self) -> &[[f32; 3]] {
+        as_vec3(&self.parts.mean_shape)
+    }
+    /// Mean albedo, `[N]` linear RGB.
+    pub fn mean_albedo(&self) -> &[[f32; 3]] {
+        as_vec3(&self.parts.mean_albedo)
+    }
+    /// Identity mode `k` (`[N]` offsets in mm per unit coefficient).
+    pub fn identity_mode(&self, k: usize) -> &[[f32; 3]] {
+        let n3 = self.meta.vertex_count * 3;
+        as_vec3(&self.parts.identity_basis[k * n3..(k + 1) * n3])
+    }
+    /// Expression mode `k`.
+    pub fn expression_mode(&self, k: usize) -> &[[f32; 3]] {
+        let n3 = self.meta.vertex_count * 3;
+        as_vec3(&self.parts.expression_basis[k * n3..(k + 1) * n3])
+    }
+    /// Albedo mode `k` over the face area.
+    pub fn albedo_mode(&self, k: usize) -> &[[f32; 3]] {
+        let n3 = self.meta.face_vertex_count * 3;
+        as_vec3(&self.parts.albedo_basis[k * n3..(k + 1) * n3])
+    }
+
+    /// Checks a coefficient block against this model's count and prior.
+    fn check(&self, block: &'static str, spec: Block, w: &[f32]) -> Result<(), ModelError> {
+        if w.len() != spec.count {
+            return Err(ModelError::CoefficientCount {
+                block,
+                expected: spec.count,
+                got: w.len(),
+            });
+        }
+        for (index, &value) in w.iter().enumerate() {
+            if !spec.prior.accepts(value) {
+                // NaN fails `accepts` too.
+                return Err(ModelError::CoefficientValue {
+                    block,
+                    index,
+                    value,
+                    range: spec.prior.range(),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Shape `s̄ + Us·ws + Ue·we` for an extent, positions in mm.
+    pub fn shape(
+        &self,
+        identity: &[f32],
+        expression: &[f32],
+        extent: Extent,
+    ) -> Result<Vec<[f32; 3]>, ModelError> {
+        let mut out = Vec::new();
+        self.shape_into(identity, expression, extent, &mut out)?;
+        Ok(out)
+    }
+
+    /// [`shape`](Self::shape) into a reused buffer (no allocation after the first call).
+    pub fn shape_into(
+        &self,
+        identity: &[f32],
+        expression: &[f32],
+        extent: Extent,
+        out: &mut Vec<[f32; 3]>,
+    ) -> Result<(), ModelError> {
+        self.check("identity", self.meta.identity, identity)?;
+        self.check("expression", self.meta.expression, expression)?;
+        let n = self.extent_vertices(extent);
+        let stride = self.meta.vertex_count * 3;
+        out.clear();
+        out.extend_from_slice(&self.mean_shape()[..n]);
+        let acc = as_flat_mut(out);
+        accumulate(acc, &self.parts.identity_basis, stride, identity);
+        accumulate(acc, &self.parts.expression_basis, stride, expression);
+        Ok(())
+    }
+
+    /// Albedo `ā + Ut·wt` for an extent, linear RGB (not clamped: the range prior of
+    /// Eq. 2.39 is the fitter's job). Outside the face area the colour is the region's constant.
+    pub fn albedo(&self, coeffs: &[f32], extent: Extent) -> Result<Vec<[f32; 3]>, ModelError> {
+        self.check("albedo", self.meta.albedo, coeffs)?;
+        let n = self.extent_vertices(extent);
+        let mut out = self.mean_albedo()[..n].to_vec();
+        let nf = self.meta.face_vertex_count;
+        let acc = &mut as_flat_mut(&mut out)[..nf * 3];
+        accumulate(acc, &self.parts.albedo_basis, nf * 3, coeffs);
+        Ok(out)
+    }
+
+    /// The face-area mesh of a coefficient set in model space (mm): positions, triangles,
+    /// per-vertex albedo as colours and per-vertex UVs (no normals: see `scene`).
+    pub fn instance(&self, c: &Coefficients) -> Result<Mesh, ModelError> {
+        self.instance_extent(c, Extent::Face)
+    }
+
+    /// Like [`instance`](Self::instance) over every vertex (the full head, for rendering).
+    pub fn instance_full(&self, c: &Coefficients) -> Result<Mesh, ModelError> {
+        self.instance_extent(c, Extent::Full)
+    }
+
+    fn instance_extent(&self, c: &Coefficients, extent: Extent) -> Result<Mesh, ModelError> {
+        let positions = self.shape(&c.identity, &c.expression, extent)?;
+        let colors = self.albedo(&c.albedo, extent)?;
+        let n = positions.len();
+        Ok(Mesh {
+            positions,
+            triangles: self.extent_triangles(extent).to_vec(),
+            normals: None,
+            colors: Some(colors),
+            uvs: Some(self.vertex_uvs[..n].to_vec()),
+        })
+    }
+}
+
+/// `acc += Σ_k w_k · basis[k]`, each mode a contiguous run of `stride` floats of which the
+/// first `acc.len()` are used. Zero weights are skipped (sparse expressions are common).
+fn accumulate(acc: &mut [f32], basis: &[f32], stride: usize, w: &[f32]) {
+    let n = acc.len();
+    for (k, &wk) in w.iter().enumerate() {
+        if wk == 0.0 {
+            continue;
+        }
+        let mode = &basis[k * stride..k * stride + n];
+        for (a, b) in acc.iter_mut().zip(mode) {
+            *a += wk * *b;
+        }
+    }
+}
+
+fn vertex_uvs(parts: &ModelParts) -> Vec<[f32; 2]> {
+    let n = parts.mean_shape.len() / 3;
+    let mut out = vec![[0.0f32; 2]; n];
+    let mut seen = vec![false; n];
+    for (t, ut) in parts.triangles.iter().zip(&parts.uv_triangles) {
+        for c in 0..3 {
+            let v = t[c] as usize;
+            if !seen[v] {
+                seen[v] = true;
+                out[v] = parts.uvs[ut[c] as usize];
+            }
+        }
+    }
+    out
+}
+
+pub(crate) fn as_vec3(v: &[f32]) -> &[[f32; 3]] {
+    let (chunks, rest) = v.as_chunks::<3>();
+    debug_assert!(rest.is_empty());
+    chunks
+}
+
+pub(crate) fn as_flat_mut(v: &mut [[f32; 3]]) -> &mut [f32] {
+    v.as_flattened_mut()
+}

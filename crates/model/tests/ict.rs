@@ -1,0 +1,259 @@
+//! The ICT importer on the real ICT-FaceKit files (shared data), checked against the two
+//! upstream shape OBJs shipped unchanged — an independent path from text to positions.
+
+use facerecon_model::ict;
+use facerecon_model::{Coefficients, Extent, Mask, MorphableModel, Prior, obj};
+
+fn upstream_obj(name: &str) -> Vec<[f32; 3]> {
+    let p = ict::default_source_dir().join("FaceXModel").join(name);
+    let text = std::fs::read_to_string(&p).unwrap();
+    obj::parse(&text, name)
+        .unwrap()
+        .positions
+        .iter()
+        .map(|q| q.map(|x| x * 10.0))
+        .collect()
+}
+
+fn max_err(a: &[[f32; 3]], b: &[[f32; 3]]) -> f32 {
+    a.iter()
+        .zip(b)
+        .flat_map(|(x, y)| (0..3).map(move |c| (x[c] - y[c]).abs()))
+        .fold(0.0, f32::max)
+}
+
+#[test]
+fn counts_and_metadata() {
+    let m = ict::load_default().unwrap();
+    let meta = m.meta();
+    assert_eq!(meta.units, "mm");
+    assert_eq!(m.vertex_count(), 24_591);
+    assert_eq!(m.face_vertex_count(), 9_409);
+    assert_eq!(meta.identity.count, 100);
+    assert_eq!(meta.identity.prior, Prior::Gaussian);
+    assert_eq!(meta.expression.count, 53);
+    assert_eq!(meta.expression.prior, Prior::Blendshape);
+    assert_eq!(meta.albedo.count, 80);
+    assert_eq!(meta.expression_names.len(), 53);
+    assert!(meta.expression_names.iter().any(|n| n == "jawOpen"));
+    // Triangle counts from an independent count over the OBJ text: a polygon with k corners
+    // gives k − 2 triangles.
+    let text = std::fs::read_to_string(
+        ict::default_source_dir().join("FaceXModel/generic_neutral_mesh.obj"),
+    )
+    .unwrap();
+    let corners: Vec<usize> = text
+        .lines()
+        .filter(|l| l.starts_with("f "))
+        .map(|l| l.split_whitespace().count() - 1)
+        .collect();
+    assert_eq!(corners.len(), 26_384);
+    let tris = |k: usize| corners[..k].iter().map(|c| c - 2).sum::<usize>();
+    assert_eq!(m.face_triangle_count(), tris(9_230));
+    assert_eq!(m.triangles().len(), tris(24_692));
+    assert!(
+        m.extent_triangles(Extent::Face)
+            .iter()
+            .flatten()
+            .all(|&v| v < 9_409)
+    );
+    let (uvs, uv_tris) = m.uvs();
+    assert_eq!(uv_tris.len(), m.triangles().len());
+    assert!(uvs.len() > m.vertex_count(), "UVs are split at seams");
+    // UDIM-style tiles along u; the face area lies in the first tile.
+    assert!(
+        uvs.iter()
+            .all(|t| (0.0..7.0).contains(&t[0]) && (0.0..=1.0).contains(&t[1]))
+    );
+    let face_uv = &uv_tris[..m.face_triangle_count()];
+    assert!(
+        face_uv
+            .iter()
+            .flatten()
+            .all(|&i| uvs[i as usize].iter().all(|x| (0.0..=1.0).contains(x)))
+    );
+    // Regions: per-vertex ids follow upstream's ranges.
+    assert_eq!(m.region_ids()[9_408], 0);
+    assert_eq!(m.region_ids()[9_409], 1);
+    assert_eq!(meta.region_names[m.region_ids()[17_039] as usize], "teeth");
+    assert_eq!(
+        meta.region_names[m.region_ids()[24_590] as usize],
+        "iris_right"
+    );
+    let face: usize = m.mask(Mask::Face).iter().map(|&x| x as usize).sum();
+    assert_eq!(face, 9_409);
+    let narrow: usize = m.mask(Mask::NarrowFace).iter().map(|&x| x as usize).sum();
+    assert_eq!(narrow, 6_706);
+}
+
+#[test]
+fn identity000_obj_equals_neutral_plus_first_mode() {
+    let m = ict::load_default().unwrap();
+    let want = upstream_obj("identity000.obj");
+    let mut id = vec![0.0; 100];
+    id[0] = 1.0;
+    let ex = vec![0.0; 53];
+    let full = m.shape(&id, &ex, Extent::Full).unwrap();
+    // cm text → f32 → ×10 on both sides, and a difference of two shapes: a few ULPs of mm.
+    assert!(
+        max_err(&full, &want[..full.len()]) < 2e-4,
+        "{}",
+        max_err(&full, &want)
+    );
+    let face = m.shape(&id, &ex, Extent::Face).unwrap();
+    assert_eq!(face.len(), 9_409);
+    assert_eq!(&face[..], &full[..9_409]);
+    // The mode is not trivially zero.
+    assert!(max_err(&face, &m.mean_shape()[..9_409]) > 1.0);
+}
+
+#[test]
+fn jaw_open_obj_equals_neutral_plus_blendshape() {
+    let m = ict::load_default().unwrap();
+    let want = upstream_obj("jawOpen.obj");
+    let j = m
+        .meta()
+        .expression_names
+        .iter()
+        .position(|n| n == "jawOpen")
+        .unwrap();
+    let mut ex = vec![0.0; 53];
+    ex[j] = 1.0;
+    let got = m.shape(&vec![0.0; 100], &ex, Extent::Full).unwrap();
+    assert!(max_err(&got, &want[..got.len()]) < 2e-4);
+    // Half-open is halfway (linearity).
+    ex[j] = 0.5;
+    let half = m.shape(&vec![0.0; 100], &ex, Extent::Full).unwrap();
+    let mid: Vec<[f32; 3]> = m
+        .mean_shape()
+        .iter()
+        .zip(&got)
+        .map(|(a, b)| [0, 1, 2].map(|c| 0.5 * (a[c] + b[c])))
+        .collect();
+    assert!(max_err(&half, &mid) < 1e-3);
+    // The chin (landmark 8) moves down by centimetres.
+    let chin = m.landmarks()[8] as usize;
+    assert!(m.mean_shape()[chin][1] - got[chin][1] > 10.0);
+}
+
+#[test]
+fn landmarks_are_anatomically_placed() {
+    let m = ict::load_default().unwrap();
+    let p = m.mean_shape();
+    let lm: Vec<[f32; 3]> = m.landmarks().iter().map(|&i| p[i as usize]).collect();
+    // Nose tip (30) is the most forward landmark.
+    assert!(lm.iter().all(|q| q[2] <= lm[30][2]));
+    // Eyes above the nose tip above the mouth above the chin; right eye (36) at −x.
+    assert!(lm[36][1] > lm[30][1] && lm[30][1] > lm[62][1] && lm[62][1] > lm[8][1]);
+    assert!(lm[36][0] < 0.0 && lm[45][0] > 0.0);
+    // Face size in mm: outer eye corners ~ 90 mm apart, chin to brow ~ 100+ mm.
+    let eye = (lm[36][0] - lm[45][0]).abs();
+    assert!((70.0..120.0).contains(&eye), "{eye}");
+    assert!(lm[19][1] - lm[8][1] > 90.0);
+}
+
+#[test]
+fn symmetry_map_mirrors_the_face() {
+    let m = ict::load_default().unwrap();
+    let p = m.mean_shape();
+    let s = m.symmetry();
+    let mut worst = 0.0f32;
+    for v in 0..m.face_vertex_count() {
+        let q = p[s[v] as usize];
+        let d =
+            ((q[0] + p[v][0]).powi(2) + (q[1] - p[v][1]).powi(2) + (q[2] - p[v][2]).powi(2)).sqrt();
+        worst = worst.max(d);
+    }
+    assert!(worst < 3.0, "max mirror distance {worst} mm");
+    // Landmark pairs map onto each other's neighbourhood: right eye corner (36) ↔ left (45).
+    let a = p[s[m.landmarks()[36] as usize] as usize];
+    let b = p[m.landmarks()[45] as usize];
+    assert!((a[0] - b[0]).abs() < 3.0 && (a[1] - b[1]).abs() < 3.0);
+}
+
+#[test]
+fn instance_albedo_and_file_round_trip() {
+    let m = ict::load_default().unwrap();
+    let mut c = Coefficients::neutral(m.layout(), 500.0);
+    c.identity[3] = 1.5;
+    c.expression[5] = 0.7;
+    c.albedo[0] = -2.0;
+    let mesh = m.instance(&c).unwrap();
+    assert_eq!(mesh.positions.len(), 9_409);
+    assert_eq!(mesh.triangles.len(), m.face_triangle_count());
+    let colours = mesh.colors.as_ref().unwrap();
+    assert!(colours.iter().flatten().all(|x| x.is_finite()));
+    assert_eq!(mesh.uvs.as_ref().unwrap().len(), 9_409);
+    let full = m.instance_full(&c).unwrap();
+    assert_eq!(full.positions.len(), m.vertex_count());
+    assert_eq!(&full.positions[..9_409], &mesh.positions[..]);
+
+    let bytes = m.to_bytes().unwrap();
+    let back = MorphableModel::from_bytes(&bytes).unwrap();
+    assert!(back == *m, "bytes round trip");
+    let dir = std::env::temp_dir().join(format!("facerecon-model-rt-{}", std::process::id()));
+    let path = dir.join("m.safetensors");
+    m.save(&path).unwrap();
+    let back = MorphableModel::load(&path).unwrap();
+    assert!(back == *m, "file round trip");
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn albedo_model_is_plausible_symmetric_and_orthogonal() {
+    let m = ict::load_default().unwrap();
+    let nf = m.face_vertex_count();
+    let mean = m.mean_albedo();
+    assert!(mean.iter().flatten().all(|x| (0.0..=1.0).contains(x)));
+    // Lips (landmarks 62, 66: mid upper and lower inner lip) are redder than the forehead.
+    let redness = |v: usize| mean[v][0] / mean[v][1];
+    let lips = 0.5 * (redness(m.landmarks()[62] as usize) + redness(m.landmarks()[66] as usize));
+    let forehead = redness(m.landmarks()[27] as usize);
+    assert!(lips > 1.4 * forehead, "lips {lips} forehead {forehead}");
+    // Modes: mirror-symmetric, mutually orthogonal, ordered by decreasing variance.
+    let s = m.symmetry();
+    let k = m.layout().albedo;
+    let mut norms = Vec::new();
+    for a in 0..k {
+        let ma = m.albedo_mode(a);
+        let asym = (0..nf)
+            .map(|v| {
+                (0..3)
+                    .map(|c| (ma[v][c] - ma[s[v] as usize][c]).abs())
+                    .fold(0.0, f32::max)
+            })
+            .fold(0.0, f32::max);
+        let peak = ma.iter().flatten().fold(0.0f32, |x, y| x.max(y.abs()));
+        assert!(
+            asym < 0.02 * peak + 1e-6,
+            "mode {a}: asymmetry {asym} vs peak {peak}"
+        );
+        norms.push(
+            ma.iter()
+                .flatten()
+                .map(|x| (*x as f64).powi(2))
+                .sum::<f64>(),
+        );
+    }
+    for a in 0..k {
+        for b in (a + 1)..k.min(a + 8) {
+            let dot: f64 = m
+                .albedo_mode(a)
+                .iter()
+                .flatten()
+                .zip(m.albedo_mode(b).iter().flatten())
+                .map(|(x, y)| *x as f64 * *y as f64)
+                .sum();
+            assert!(
+                dot.abs() < 1e-3 * (norms[a] * norms[b]).sqrt(),
+                "modes {a},{b}"
+            );
+        }
+    }
+    assert!(norms.windows(2).all(|w| w[1] <= w[0] * 1.0001));
+    // A +2σ sample of the first mode changes the colour smoothly and stays in a sane range.
+    let mut c = vec![0.0; k];
+    c[0] = 2.0;
+    let a = m.albedo(&c, Extent::Face).unwrap();
+    assert!(a.iter().flatten().all(|x| (-0.1..1.1).contains(x)));
+}
