@@ -20,7 +20,7 @@
 //!
 //! **Camera**: at the origin, looking down −Z, +Y up, right-handed; units mm.
 
-use crate::coeffs::SH_COEFFS;
+pub use crate::coeffs::SH_COEFFS;
 use glam::{DMat3, DVec3, Mat3, Mat4, Vec3, Vec4};
 
 /// Default vertical field of view, degrees (DESIGN §4).
