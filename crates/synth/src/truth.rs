@@ -1,0 +1,100 @@
+//! The ground truth of one synthetic sample, as written to its JSON file.
+
+use facerecon_model::Coefficients;
+
+use crate::head::PartColors;
+use crate::pose::Euler;
+
+/// Version tag of the JSON layout.
+pub const TRUTH_FORMAT: &str = "facerecon-synth/1";
+
+/// Axis-aligned box in pixels (0-based, pixel centres at integers; `x1`, `y1` inclusive
+/// extremes of the points or pixels it bounds).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PixelBox {
+    pub x0: f32,
+    pub y0: f32,
+    pub x1: f32,
+    pub y1: f32,
+}
+
+impl PixelBox {
+    pub fn of_points(points: impl IntoIterator<Item = [f32; 2]>) -> Option<Self> {
+        let mut b: Option<PixelBox> = None;
+        for [x, y] in points {
+            b = Some(match b {
+                None => PixelBox { x0: x, y0: y, x1: x, y1: y },
+                Some(b) => PixelBox { x0: b.x0.min(x), y0: b.y0.min(y), x1: b.x1.max(x), y1: b.y1.max(y) },
+            });
+        }
+        b
+    }
+}
+
+/// The square crop of DESIGN §3 around the landmarks: the landmark box grown by 30 %,
+/// made square (side = 1.3 · max(width, height)), same centre.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Crop {
+    pub cx: f32,
+    pub cy: f32,
+    pub side: f32,
+    /// Resolution bucket of `side` (0–3), `None` when below 32 px.
+    pub bucket: Option<u8>,
+}
+
+impl Crop {
+    pub fn of_box(b: &PixelBox) -> Self {
+        let side = 1.3 * (b.x1 - b.x0).max(b.y1 - b.y0);
+        Crop { cx: 0.5 * (b.x0 + b.x1), cy: 0.5 * (b.y0 + b.y1), side, bucket: crate::config::bucket_of(side) }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CameraTruth {
+    pub fov_y_deg: f32,
+    /// width / height.
+    pub aspect: f32,
+    pub near_mm: f32,
+    pub far_mm: f32,
+    /// Focal length in pixels (`H / (2·tan(fov_y/2))`), for pinhole users.
+    pub focal_px: f32,
+}
+
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Landmark {
+    /// Pixel coordinates (0-based, pixel centres at integers, y down).
+    pub xy: [f32; 2],
+    /// Camera space, mm (camera at the origin looking down −Z).
+    pub xyz: [f32; 3],
+    /// Not hidden by the face itself (visibility buffer) and inside the image.
+    pub visible: bool,
+}
+
+/// Everything known about one sample.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct GroundTruth {
+    pub format: String,
+    pub index: u64,
+    pub seed: u64,
+    pub model: String,
+    pub image: String,
+    pub mask: String,
+    pub width: u32,
+    pub height: u32,
+    /// Identity, expression, albedo, SH light (camera-space normals), rotation
+    /// (axis-angle), translation (mm).
+    pub coefficients: Coefficients,
+    pub expression_actions: Vec<String>,
+    pub euler: Euler,
+    pub camera: CameraTruth,
+    pub part_colors: PartColors,
+    /// 68 landmarks, iBUG order.
+    pub landmarks: Vec<Landmark>,
+    pub landmark_box: PixelBox,
+    pub crop: Crop,
+    /// Box of the face-area pixels of the mask; `None` when the face area is not visible.
+    pub face_box: Option<PixelBox>,
+    pub face_pixels: u64,
+    /// Pixels covered by any part of the head.
+    pub head_pixels: u64,
+}
