@@ -1,1 +1,358 @@
-//! (being written)
+//! Viola–Jones face detection (thesis §1.1.1) on OpenCV's cascade files.
+//!
+//! This module owns the built-in detector: [`ViolaJones`] runs boosted cascades of Haar or
+//! LBP features over a grey image pyramid, exactly as OpenCV's
+//! `CascadeClassifier::detectMultiScale` does (same pyramid sizes, window steps, variance
+//! normalisation, early rejection and `groupRectangles`), for several cascades at once —
+//! by default a frontal cascade, a profile cascade and the same profile cascade mirrored
+//! (which finds faces turned the other way without flipping the image) — and merges their
+//! faces by non-maximum suppression.
+//!
+//! Cascade files come from Debian's `opencv-data` package
+//! (`/usr/share/opencv4/haarcascades`, `/usr/share/opencv4/lbpcascades`).
+//!
+//! * [`cascade`] — parsing and validating the XML files, mirroring a cascade.
+//! * [`integral`] — upright, squared and tilted integral images.
+//! * [`pyramid`] — grey conversion and the scaled images.
+//! * [`scan`] — evaluating a cascade on windows.
+//! * [`group`] — `groupRectangles` and non-maximum suppression.
+
+pub mod cascade;
+pub mod group;
+pub mod integral;
+pub mod pyramid;
+pub mod scan;
+
+use std::path::{Path, PathBuf};
+
+use image::RgbImage;
+use rayon::prelude::*;
+
+use crate::face::{Detection, FaceBox, FaceDetector, ModelRunError};
+use cascade::Cascade;
+use pyramid::{Grey, Level};
+use scan::{Compiled, Rect};
+
+/// Why a detector could not be built.
+#[derive(Debug, thiserror::Error)]
+pub enum DetectError {
+    #[error(
+        "cascade file {path} not found: install the Debian/Ubuntu package `opencv-data` \
+         (apt-get install opencv-data) or pass the cascade files explicitly"
+    )]
+    MissingCascade { path: PathBuf },
+    #[error("cannot read cascade file {path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("invalid cascade: {0}")]
+    Cascade(String),
+    #[error("invalid cascade file {path}: {message}")]
+    CascadeFile { path: PathBuf, message: String },
+    #[error("invalid detector parameters: {0}")]
+    Params(String),
+}
+
+/// Where Debian's `opencv-data` installs the cascades.
+pub const OPENCV_DATA_DIR: &str = "/usr/share/opencv4";
+/// Frontal Haar cascade (Lienhart), OpenCV's default face detector.
+pub const FRONTAL_HAAR: &str = "haarcascades/haarcascade_frontalface_default.xml";
+/// Alternative frontal Haar cascades (tree-based weak classifiers in `alt2`).
+pub const FRONTAL_HAAR_ALT: &str = "haarcascades/haarcascade_frontalface_alt.xml";
+pub const FRONTAL_HAAR_ALT2: &str = "haarcascades/haarcascade_frontalface_alt2.xml";
+/// Profile (left-facing… as seen in the image: the face turned to the image's left side
+/// is found by the cascade, the other side by its mirror) Haar cascade.
+pub const PROFILE_HAAR: &str = "haarcascades/haarcascade_profileface.xml";
+/// LBP cascades: faster, slightly less accurate.
+pub const FRONTAL_LBP: &str = "lbpcascades/lbpcascade_frontalface.xml";
+pub const FRONTAL_LBP_IMPROVED: &str = "lbpcascades/lbpcascade_frontalface_improved.xml";
+pub const PROFILE_LBP: &str = "lbpcascades/lbpcascade_profileface.xml";
+
+/// Detection parameters. The defaults are the product's tuned setting (see
+/// `docs/decisions/0400-face-detector.md`); [`DetectorParams::opencv`] reproduces
+/// `detectMultiScale(scaleFactor 1.1, minNeighbors 3, minSize 24)`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DetectorParams {
+    /// Pyramid step (> 1). Default 1.1.
+    pub scale_factor: f32,
+    /// A face needs more than this many raw window hits (OpenCV's minNeighbors). Default 3.
+    pub min_neighbors: usize,
+    /// Smallest face side sought, in pixels. Default 24.
+    pub min_size: u32,
+    /// Smallest face side as a fraction of the image's shorter side; the larger of this and
+    /// `min_size` applies. Default 0 (no relative limit).
+    pub min_size_fraction: f32,
+    /// Largest face side sought, in pixels (`None`: the image size).
+    pub max_size: Option<u32>,
+    /// Shrink the grey image by an integer box filter when the smallest face sought is at
+    /// least twice the cascade window, so the pyramid starts from an anti-aliased image.
+    /// Off in [`DetectorParams::opencv`]. Default on.
+    pub prefilter: bool,
+    /// Non-maximum suppression across cascades: IoU above which the weaker face is dropped.
+    /// Default 0.3.
+    pub nms_iou: f32,
+    /// …and the fraction of the smaller box inside the other above which it is dropped.
+    /// Default 0.7.
+    pub nms_containment: f32,
+}
+
+impl Default for DetectorParams {
+    fn default() -> Self {
+        DetectorParams {
+            scale_factor: 1.1,
+            min_neighbors: 3,
+            min_size: 24,
+            min_size_fraction: 0.0,
+            max_size: None,
+            prefilter: true,
+            nms_iou: 0.3,
+            nms_containment: 0.7,
+        }
+    }
+}
+
+impl DetectorParams {
+    /// OpenCV's `detectMultiScale` defaults as used for the reference figure: scale 1.1,
+    /// 3 neighbours, min size 24, no prefilter.
+    pub fn opencv() -> Self {
+        DetectorParams { prefilter: false, ..Default::default() }
+    }
+
+    fn validate(&self) -> Result<(), DetectError> {
+        if !(self.scale_factor > 1.0001 && self.scale_factor < 10.0) {
+            return Err(DetectError::Params(format!("scale_factor {} must be in (1, 10)", self.scale_factor)));
+        }
+        if !(0.0..=1.0).contains(&self.min_size_fraction) {
+            return Err(DetectError::Params(format!("min_size_fraction {} must be in [0, 1]", self.min_size_fraction)));
+        }
+        if !(0.0..=1.0).contains(&self.nms_iou) || !(0.0..=1.0).contains(&self.nms_containment) {
+            return Err(DetectError::Params("nms thresholds must be in [0, 1]".into()));
+        }
+        Ok(())
+    }
+}
+
+/// One cascade of the detector, with the name its detections carry as `source`.
+#[derive(Clone, Debug)]
+pub struct NamedCascade {
+    pub name: String,
+    pub cascade: Cascade,
+}
+
+/// A raw (grouped, not yet merged) face of one cascade.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CascadeFace {
+    /// OpenCV rectangle: top-left pixel and size in pixels.
+    pub x: i32,
+    pub y: i32,
+    pub w: i32,
+    pub h: i32,
+    pub neighbors: usize,
+    /// Best last-stage margin among the merged windows.
+    pub margin: f32,
+}
+
+/// The Viola–Jones detector: one or more cascades sharing one image pyramid.
+#[derive(Clone, Debug)]
+pub struct ViolaJones {
+    cascades: Vec<NamedCascade>,
+    params: DetectorParams,
+}
+
+fn read_cascade(path: &Path) -> Result<Cascade, DetectError> {
+    let xml = std::fs::read_to_string(path).map_err(|e| {
+        if e.kind() == std::io::ErrorKind::NotFound {
+            DetectError::MissingCascade { path: path.to_path_buf() }
+        } else {
+            DetectError::Io { path: path.to_path_buf(), source: e }
+        }
+    })?;
+    Cascade::from_xml(&xml).map_err(|e| DetectError::CascadeFile { path: path.to_path_buf(), message: e.to_string() })
+}
+
+impl ViolaJones {
+    /// The product detector from `opencv-data`'s default location: frontal Haar, profile
+    /// Haar and mirrored profile Haar, default parameters.
+    pub fn load_default() -> Result<Self, DetectError> {
+        Self::load_default_from(Path::new(OPENCV_DATA_DIR))
+    }
+
+    /// As [`ViolaJones::load_default`], cascades looked up under `dir` (the folder holding
+    /// `haarcascades/` and `lbpcascades/`).
+    pub fn load_default_from(dir: &Path) -> Result<Self, DetectError> {
+        let frontal = read_cascade(&dir.join(FRONTAL_HAAR))?;
+        let profile = read_cascade(&dir.join(PROFILE_HAAR))?;
+        let mirrored = profile.mirrored();
+        Self::new(
+            vec![
+                NamedCascade { name: "haar-frontal".into(), cascade: frontal },
+                NamedCascade { name: "haar-profile".into(), cascade: profile },
+                NamedCascade { name: "haar-profile-mirrored".into(), cascade: mirrored },
+            ],
+            DetectorParams::default(),
+        )
+    }
+
+    /// A detector from cascade files; `mirror` adds each file's mirrored cascade too.
+    /// Detections are named after the file stem (`-mirrored` appended).
+    pub fn from_files(paths: &[(&Path, bool)], params: DetectorParams) -> Result<Self, DetectError> {
+        let mut cascades = Vec::new();
+        for (path, mirror) in paths {
+            let c = read_cascade(path)?;
+            let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+            if *mirror {
+                cascades.push(NamedCascade { name: format!("{name}-mirrored"), cascade: c.mirrored() });
+            }
+            cascades.push(NamedCascade { name, cascade: c });
+        }
+        Self::new(cascades, params)
+    }
+
+    pub fn new(cascades: Vec<NamedCascade>, params: DetectorParams) -> Result<Self, DetectError> {
+        params.validate()?;
+        if cascades.is_empty() {
+            return Err(DetectError::Params("a detector needs at least one cascade".into()));
+        }
+        Ok(ViolaJones { cascades, params })
+    }
+
+    pub fn params(&self) -> &DetectorParams {
+        &self.params
+    }
+
+    pub fn set_params(&mut self, params: DetectorParams) -> Result<(), DetectError> {
+        params.validate()?;
+        self.params = params;
+        Ok(())
+    }
+
+    pub fn cascades(&self) -> &[NamedCascade] {
+        &self.cascades
+    }
+
+    /// Each cascade's grouped faces (before merging across cascades).
+    pub fn detect_per_cascade(&self, image: &RgbImage) -> Vec<Vec<CascadeFace>> {
+        self.detect_grey(&Grey::from_rgb(image))
+    }
+
+    /// Each cascade's grouped faces on a grey image.
+    pub fn detect_grey(&self, grey: &Grey) -> Vec<Vec<CascadeFace>> {
+        let p = &self.params;
+        let (iw, ih) = (grey.width, grey.height);
+        let nc = self.cascades.len();
+        if iw == 0 || ih == 0 {
+            return vec![Vec::new(); nc];
+        }
+        let min_face = (p.min_size as f32).max(p.min_size_fraction * iw.min(ih) as f32);
+        let max_face = p.max_size.map_or(f32::INFINITY, |m| m as f32);
+        let min_win = self.cascades.iter().map(|c| c.cascade.width.min(c.cascade.height)).min().unwrap_or(1);
+        // Prefilter: shrink by k ≤ min_face / window so the first useful level stays ≥ 1.
+        let k = if p.prefilter { ((min_face / min_win as f32).floor() as usize).max(1) } else { 1 };
+        let base = grey.shrink(k);
+        let kf = k as f64;
+        // The union of every cascade's scale list (relative to the source image), each
+        // cascade then scanning the levels where its window fits and has an allowed size.
+        let sf = f64::from(p.scale_factor);
+        let mut all: Vec<f32> = Vec::new();
+        for c in &self.cascades {
+            for s in pyramid::scales(iw, ih, c.cascade.width, c.cascade.height, sf) {
+                if !all.contains(&s) {
+                    all.push(s);
+                }
+            }
+        }
+        all.sort_by(f32::total_cmp);
+        let wanted = |c: &Cascade, f: f32| {
+            let ww = (f64::from(c.width) * f64::from(f)).round() as f32;
+            let wh = (f64::from(c.height) * f64::from(f)).round() as f32;
+            ww >= min_face.min(f32::MAX) && wh >= min_face && ww <= max_face.min(iw as f32) && wh <= max_face.min(ih as f32)
+        };
+        let all: Vec<f32> = all
+            .into_iter()
+            .filter(|&f| f64::from(f) >= kf * 0.999 && self.cascades.iter().any(|c| wanted(&c.cascade, f)))
+            .collect();
+        let squared = self.cascades.iter().any(|c| c.cascade.feature_type == cascade::FeatureType::Haar);
+        let tilted = self.cascades.iter().any(|c| c.cascade.has_tilted());
+        let levels: Vec<Level> = all
+            .par_iter()
+            .map(|&f| {
+                // Level size from the source image (OpenCV), sampled from the shrunk base.
+                let (lw, lh) = pyramid::level_size(iw, ih, f);
+                let img = base.resize(lw.max(1), lh.max(1));
+                Level { scale: f, integral: integral::Integral::new(&img.pixels, img.width, img.height, squared, tilted) }
+            })
+            .collect();
+        // Work items: (level, cascade, row band), so both cores stay busy on the big levels.
+        let mut work = Vec::new();
+        for (li, lv) in levels.iter().enumerate() {
+            for (ci, c) in self.cascades.iter().enumerate() {
+                if !wanted(&c.cascade, lv.scale) {
+                    continue;
+                }
+                let h = lv.integral.height;
+                let band = 32;
+                let mut y = 0;
+                while y < h {
+                    work.push((li, ci, y..(y + band).min(h)));
+                    y += band;
+                }
+            }
+        }
+        let compiled: Vec<Vec<Option<Compiled<'_>>>> = levels
+            .iter()
+            .map(|lv| {
+                self.cascades
+                    .iter()
+                    .map(|c| wanted(&c.cascade, lv.scale).then(|| Compiled::new(&c.cascade, lv.integral.stride)))
+                    .collect()
+            })
+            .collect();
+        let hits: Vec<(usize, Vec<(Rect, f32)>)> = work
+            .into_par_iter()
+            .map(|(li, ci, rows)| {
+                let mut out = Vec::new();
+                if let Some(c) = &compiled[li][ci] {
+                    scan::scan_rows(c, &levels[li].integral, levels[li].scale, rows, &mut out);
+                }
+                (ci, out)
+            })
+            .collect();
+        let mut per: Vec<Vec<(Rect, f32)>> = vec![Vec::new(); nc];
+        for (ci, h) in hits {
+            per[ci].extend(h);
+        }
+        per.into_par_iter()
+            .map(|h| {
+                group::group_rectangles(&h, p.min_neighbors, 0.2)
+                    .into_iter()
+                    .map(|g| CascadeFace { x: g.rect.x, y: g.rect.y, w: g.rect.w, h: g.rect.h, neighbors: g.neighbors, margin: g.margin })
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// All faces, merged across cascades by non-maximum suppression, best first.
+    /// Score = the number of raw window hits merged into the face (OpenCV's neighbours).
+    pub fn detect_faces(&self, image: &RgbImage) -> Vec<Detection> {
+        let per = self.detect_per_cascade(image);
+        let mut all = Vec::new();
+        for (c, faces) in self.cascades.iter().zip(per) {
+            for f in faces {
+                all.push(Detection {
+                    // OpenCV rectangles cover pixels x..x+w−1: inclusive corners.
+                    face_box: FaceBox { x0: f.x as f32, y0: f.y as f32, x1: (f.x + f.w - 1) as f32, y1: (f.y + f.h - 1) as f32 },
+                    score: f.neighbors as f32,
+                    source: c.name.clone(),
+                });
+            }
+        }
+        group::nms(all, |d| (d.face_box, d.score), self.params.nms_iou, self.params.nms_containment)
+    }
+}
+
+impl FaceDetector for ViolaJones {
+    fn detect(&self, image: &RgbImage) -> Result<Vec<Detection>, ModelRunError> {
+        Ok(self.detect_faces(image))
+    }
+}
+
+#[cfg(test)]
+mod tests;

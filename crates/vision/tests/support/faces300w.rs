@@ -147,7 +147,8 @@ pub fn read_dlib_reference(dir: &Path) -> Vec<DlibReference> {
         .collect()
 }
 
-/// Decodes a photo to RGB (greyscale photos replicated to three channels).
+/// Decodes a photo as the product does ([`facerecon_vision::decode`]: RGB, EXIF
+/// orientation applied, greyscale replicated to three channels).
 ///
 /// With `FACERECON_LIBJPEG_PPM_DIR` set, JPEG photos are read instead from binary PPM
 /// files decoded by libjpeg-turbo (the decoder of dlib's reference run), laid out like
@@ -161,5 +162,6 @@ pub fn load_rgb(dir: &Path, path: &str) -> image::RgbImage {
         let wh: Vec<u32> = hdr.lines().nth(1).unwrap().split(' ').map(|v| v.parse().unwrap()).collect();
         return image::RgbImage::from_raw(wh[0], wh[1], ppm[off..].to_vec()).unwrap();
     }
-    image::open(dir.join(path)).unwrap_or_else(|e| panic!("{path}: {e}")).to_rgb8()
+    let bytes = std::fs::read(dir.join(path)).unwrap_or_else(|e| panic!("{path}: {e}"));
+    facerecon_vision::decode::decode(&bytes).unwrap_or_else(|e| panic!("{path}: {e}"))
 }
