@@ -76,14 +76,6 @@ impl AxisTaps {
     fn taps(&self, u: usize) -> (usize, &[f32]) {
         (self.start[u], &self.weights[self.off[u]..self.off[u + 1]])
     }
-
-    /// Source range `[lo, hi)` any inside pixel reads.
-    fn span(&self) -> (usize, usize) {
-        (0..self.start.len())
-            .filter(|&u| self.inside[u])
-            .map(|u| (self.start[u], self.start[u] + self.off[u + 1] - self.off[u]))
-            .fold((usize::MAX, 0), |(a, b), (lo, hi)| (a.min(lo), b.max(hi)))
-    }
 }
 
 /// Writes the tensor `[1, 3, grid.height, grid.width]` (channel-planar, row-major) of
@@ -104,14 +96,15 @@ pub(crate) fn sample_nchw(image: &RgbImage, grid: &Grid, px: &PixelNormalisation
     let yt = AxisTaps::new(oh, sh, grid.y);
     let raw = image.as_raw();
 
-    // Horizontal pass over the photo rows some tensor row reads, straight from the
-    // interleaved pixels, into planar rows hrows[t][(y − row_lo)·ow + u].
-    let (row_lo, row_hi) = yt.span();
-    let nrows = row_hi.saturating_sub(row_lo);
-    let mut hrows = [vec![0f32; nrows * ow], vec![0f32; nrows * ow], vec![0f32; nrows * ow]];
-    for y in row_lo..row_hi {
+    // Horizontal pass, one photo row at a time, into a ring of the last `ring_len` rows
+    // (planar, tensor channel order): tap windows only move down as v grows and hold at
+    // most `ring_len` rows, so memory stays a few rows whatever the photo size.
+    let ring_len = (0..oh).map(|v| yt.off[v + 1] - yt.off[v]).max().unwrap_or(0).max(1);
+    let mut ring = [vec![0f32; ring_len * ow], vec![0f32; ring_len * ow], vec![0f32; ring_len * ow]];
+    let mut next_row = 0; // rows below this one are in the ring (the last ring_len of them)
+    let horizontal = |y: usize, ring: &mut [Vec<f32>; 3]| {
         let src = &raw[y * sw * 3..(y + 1) * sw * 3];
-        let r0 = (y - row_lo) * ow;
+        let r0 = (y % ring_len) * ow;
         for u in (0..ow).filter(|&u| xt.inside[u]) {
             let (s, w) = xt.taps(u);
             let mut acc = [0f32; 3];
@@ -121,25 +114,30 @@ pub(crate) fn sample_nchw(image: &RgbImage, grid: &Grid, px: &PixelNormalisation
                 acc[2] += wk * p[2] as f32;
             }
             for t in 0..3 {
-                hrows[t][r0 + u] = acc[src_of[t]];
+                ring[t][r0 + u] = acc[src_of[t]];
             }
         }
-    }
+    };
 
     // Vertical pass (a weighted sum of rows, vectorisable over u), normalisation, padding.
     let inv_std: [f32; 3] = std::array::from_fn(|t| 1.0 / px.std[t]);
-    for t in 0..3 {
-        let out_plane = &mut out[t * plane..(t + 1) * plane];
-        for v in 0..oh {
-            let dst = &mut out_plane[v * ow..(v + 1) * ow];
-            if !yt.inside[v] {
-                dst.fill(pad[t]);
-                continue;
+    for v in 0..oh {
+        if !yt.inside[v] {
+            for t in 0..3 {
+                out[t * plane + v * ow..t * plane + (v + 1) * ow].fill(pad[t]);
             }
-            let (s, w) = yt.taps(v);
+            continue;
+        }
+        let (s, w) = yt.taps(v);
+        for y in next_row.max(s)..s + w.len() {
+            horizontal(y, &mut ring);
+        }
+        next_row = next_row.max(s + w.len());
+        for t in 0..3 {
+            let dst = &mut out[t * plane + v * ow..t * plane + (v + 1) * ow];
             for (k, wk) in w.iter().enumerate() {
-                let r0 = (s + k - row_lo) * ow;
-                for (d, h) in dst.iter_mut().zip(&hrows[t][r0..r0 + ow]) {
+                let r0 = ((s + k) % ring_len) * ow;
+                for (d, h) in dst.iter_mut().zip(&ring[t][r0..r0 + ow]) {
                     *d += wk * h;
                 }
             }
@@ -232,6 +230,55 @@ mod tests {
                 for c in 0..3 {
                     let want = if is_in { inside[c] } else { pad[c] };
                     assert_eq!(at(&t, &g, c, u, v), want, "({u},{v}) c{c}");
+                }
+            }
+        }
+    }
+
+    /// The documented definition evaluated directly (2D, every photo pixel, no separation,
+    /// no ring of rows): the oracle for the separable implementation.
+    fn direct(img: &RgbImage, g: &Grid, u: usize, v: usize) -> Option<[f64; 3]> {
+        let (w, h) = (img.width() as f64, img.height() as f64);
+        let (x, y) = (g.x.to_image(u as f64), g.y.to_image(v as f64));
+        if x < -0.5 || x > w - 0.5 || y < -0.5 || y > h - 0.5 {
+            return None;
+        }
+        let tent = |d: f64, r: f64| (1.0 - d.abs() / r).max(0.0);
+        let (rx, ry) = (g.x.scale.max(1.0), g.y.scale.max(1.0));
+        let (mut acc, mut norm) = ([0.0; 3], 0.0);
+        for (i, j, p) in img.enumerate_pixels() {
+            let wgt = tent(i as f64 - x, rx) * tent(j as f64 - y, ry);
+            norm += wgt;
+            for c in 0..3 {
+                acc[c] += wgt * p[c] as f64;
+            }
+        }
+        Some(acc.map(|a| a / norm))
+    }
+
+    #[test]
+    fn separable_sampling_matches_the_direct_definition() {
+        // A pseudo-random photo; crops that shrink (2.7×, 0.6× per axis), straddle the
+        // border, and enlarge.
+        let img = RgbImage::from_fn(53, 41, |x, y| {
+            let h = (x * 7919 + y * 104729) ^ (x * y * 31);
+            image::Rgb([(h % 251) as u8, (h / 7 % 241) as u8, (h / 13 % 239) as u8])
+        });
+        let grids = [
+            Grid { width: 17, height: 13, x: AxisMap { scale: 2.7, offset: 1.3 }, y: AxisMap { scale: 2.7, offset: 2.2 } },
+            Grid { width: 20, height: 16, x: AxisMap { scale: 3.1, offset: -9.0 }, y: AxisMap { scale: 2.2, offset: 20.0 } },
+            Grid { width: 30, height: 25, x: AxisMap { scale: 0.6, offset: 40.0 }, y: AxisMap { scale: 0.45, offset: -3.0 } },
+        ];
+        for g in &grids {
+            let mut t = Vec::new();
+            sample_nchw(&img, g, &raw_px(), &mut t);
+            for v in 0..g.height {
+                for u in 0..g.width {
+                    let want = direct(&img, g, u, v).unwrap_or([-7.0; 3]);
+                    for c in 0..3 {
+                        let got = at(&t, g, c, u, v) as f64;
+                        assert!((got - want[c]).abs() < 2e-3, "{g:?} ({u},{v}) c{c}: {got} vs {}", want[c]);
+                    }
                 }
             }
         }
