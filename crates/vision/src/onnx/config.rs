@@ -260,10 +260,8 @@ fn from_json_file<T: serde::de::DeserializeOwned>(path: &Path, model: impl FnOnc
         .map_err(|e| OnnxError::Config(format!("cannot read {}: {e}", path.display())))?;
     let mut config: T = serde_json::from_str(&text).map_err(|e| OnnxError::Config(format!("{}: {e}", path.display())))?;
     let m = model(&mut config);
-    if m.is_relative() && !m.as_os_str().is_empty() {
-        if let Some(dir) = path.parent() {
-            *m = dir.join(&*m);
-        }
+    if let Some(dir) = path.parent().filter(|_| m.is_relative() && !m.as_os_str().is_empty()) {
+        *m = dir.join(&*m);
     }
     Ok(config)
 }

@@ -70,7 +70,7 @@ impl CropSquare {
     }
 
     /// Crop-normalised point (0 = left/top edge, 1 = right/bottom edge) → photo position.
-    pub fn to_photo(&self, q: [f64; 2]) -> [f64; 2] {
+    pub fn to_photo(self, q: [f64; 2]) -> [f64; 2] {
         [self.left + q[0] * self.side, self.top + q[1] * self.side]
     }
 }

@@ -58,10 +58,8 @@ pub(crate) fn check_output(d: &Declared, shapes: &[&[i64]], wanted: &str) -> Res
     if d.ty != TensorElementType::Float32 {
         return Err(format!("output `{}` is {:?}, the contract needs float32", d.name, d.ty));
     }
-    if let Some(dims) = &d.dims {
-        if !compatible(dims, shapes) {
-            return Err(format!("output `{}` is declared {}, the contract needs {wanted}", d.name, fmt_dims(dims)));
-        }
+    if let Some(dims) = d.dims.as_ref().filter(|dims| !compatible(dims, shapes)) {
+        return Err(format!("output `{}` is declared {}, the contract needs {wanted}", d.name, fmt_dims(dims)));
     }
     Ok(())
 }
@@ -75,7 +73,7 @@ pub(crate) fn check_image_input(d: &Declared) -> Result<(i64, i64), String> {
     let Some(dims) = &d.dims else {
         return Err(format!("input `{}` declares no shape; the contract needs [1, 3, H, W]", d.name));
     };
-    if !compatible(dims, &[&[1, 3, -1, -1]]) || dims.iter().any(|&x| x == 0) {
+    if !compatible(dims, &[&[1, 3, -1, -1]]) || dims.contains(&0) {
         return Err(format!("input `{}` is declared {}, the contract needs [1, 3, H, W]", d.name, fmt_dims(dims)));
     }
     Ok((dims[2], dims[3]))
