@@ -124,6 +124,13 @@ fn bench(c: &mut Criterion<CpuTime>) {
     g.bench_function("instance_face", |b| {
         b.iter(|| m.instance(black_box(&coeffs)).unwrap())
     });
+    let mut mesh = facerecon_model::Mesh::default();
+    g.bench_function("instance_into_face", |b| {
+        b.iter(|| {
+            m.instance_into(black_box(&coeffs), Extent::Face, &mut mesh)
+                .unwrap()
+        })
+    });
 
     // Same bytes as shape_face_dense, each mode copied into an L2-resident buffer: the
     // "read every byte once" reference.
