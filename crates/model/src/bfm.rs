@@ -82,7 +82,7 @@ pub fn read_exp_pca(bytes: &[u8], file: &str) -> Result<(usize, usize, Vec<f32>)
     // 4 + 12·M (mean) + 12·K·M (modes) bytes.
     let body = bytes.len() - 4;
     let per_vertex = 12 * (k + 1);
-    if body == 0 || body % per_vertex != 0 {
+    if body == 0 || !body.is_multiple_of(per_vertex) {
         return Err(err(format!(
             "{} bytes do not hold {k} modes of whole vertices (4 + 12·M·(K+1) expected)",
             bytes.len()
@@ -269,13 +269,13 @@ pub fn import(src: &BfmSources) -> Result<MorphableModel, ModelError> {
     for r in 0..rows {
         let mut tri = [0u32; 3];
         let mut ok = true;
-        for c in 0..3 {
+        for (c, slot) in tri.iter_mut().enumerate() {
             let v = tl.data[c * rows + r]; // column-major
             if v.fract() != 0.0 || v < 1.0 || v > n as f64 {
                 return Err(bad(format!("tl row {r} references vertex {v} (1..={n})")));
             }
-            tri[c] = new_id[v as usize - 1];
-            ok &= tri[c] != u32::MAX;
+            *slot = new_id[v as usize - 1];
+            ok &= *slot != u32::MAX;
         }
         if ok && tri[0] != tri[1] && tri[1] != tri[2] && tri[0] != tri[2] {
             triangles.push(tri);

@@ -335,16 +335,83 @@ impl MorphableModel {
         Ok(())
     }
 
+    /// Shapes of many faces at once (`identity[b]`, `expression[b]` for face b). Each basis
+    /// mode is streamed from memory once per block of vertices for the whole batch instead
+    /// of once per face, so the per-face cost drops from memory-bound towards compute-bound
+    /// (see docs/bench/model.md).
+    pub fn shape_batch(
+        &self,
+        identity: &[&[f32]],
+        expression: &[&[f32]],
+        extent: Extent,
+    ) -> Result<Vec<Vec<[f32; 3]>>, ModelError> {
+        if identity.len() != expression.len() {
+            return Err(ModelError::Invalid(format!(
+                "batch of {} identity and {} expression vectors",
+                identity.len(),
+                expression.len()
+            )));
+        }
+        for (id, ex) in identity.iter().zip(expression) {
+            self.check("identity", self.meta.identity, id)?;
+            self.check("expression", self.meta.expression, ex)?;
+        }
+        let n = self.extent_vertices(extent);
+        let n3 = n * 3;
+        let stride = self.meta.vertex_count * 3;
+        let mut outs: Vec<Vec<[f32; 3]>> = identity
+            .iter()
+            .map(|_| self.mean_shape()[..n].to_vec())
+            .collect();
+        /// Floats per block: 16 KB of one mode, reused from L1 for every face.
+        const BLOCK: usize = 4096;
+        for start in (0..n3).step_by(BLOCK) {
+            let end = (start + BLOCK).min(n3);
+            for (basis, weights) in [
+                (&self.parts.identity_basis, identity),
+                (&self.parts.expression_basis, expression),
+            ] {
+                let modes = weights.first().map_or(0, |w| w.len());
+                for k in 0..modes {
+                    let m = &basis[k * stride + start..k * stride + end];
+                    for (out, w) in outs.iter_mut().zip(weights.iter()) {
+                        let wk = w[k];
+                        if wk != 0.0 {
+                            let acc = &mut out.as_flattened_mut()[start..end];
+                            for (a, b) in acc.iter_mut().zip(m) {
+                                *a += wk * *b;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        Ok(outs)
+    }
+
     /// Albedo `ā + Ut·wt` for an extent, linear RGB (not clamped: the range prior of
     /// Eq. 2.39 is the fitter's job). Outside the face area the colour is the region's constant.
     pub fn albedo(&self, coeffs: &[f32], extent: Extent) -> Result<Vec<[f32; 3]>, ModelError> {
+        let mut out = Vec::new();
+        self.albedo_into(coeffs, extent, &mut out)?;
+        Ok(out)
+    }
+
+    /// [`albedo`](Self::albedo) into a reused buffer.
+    pub fn albedo_into(
+        &self,
+        coeffs: &[f32],
+        extent: Extent,
+        out: &mut Vec<[f32; 3]>,
+    ) -> Result<(), ModelError> {
         self.check("albedo", self.meta.albedo, coeffs)?;
         let n = self.extent_vertices(extent);
-        let mut out = self.mean_albedo()[..n].to_vec();
+        out.clear();
+        out.extend_from_slice(&self.mean_albedo()[..n]);
         let nf = self.meta.face_vertex_count;
-        let acc = &mut as_flat_mut(&mut out)[..nf * 3];
+        let acc = &mut as_flat_mut(out)[..nf * 3];
         accumulate(acc, &self.parts.albedo_basis, nf * 3, coeffs);
-        Ok(out)
+        Ok(())
     }
 
     /// The face-area mesh of a coefficient set in model space (mm): positions, triangles,
@@ -359,16 +426,36 @@ impl MorphableModel {
     }
 
     fn instance_extent(&self, c: &Coefficients, extent: Extent) -> Result<Mesh, ModelError> {
-        let positions = self.shape(&c.identity, &c.expression, extent)?;
-        let colors = self.albedo(&c.albedo, extent)?;
-        let n = positions.len();
-        Ok(Mesh {
-            positions,
-            triangles: self.extent_triangles(extent).to_vec(),
-            normals: None,
-            colors: Some(colors),
-            uvs: Some(self.vertex_uvs[..n].to_vec()),
-        })
+        let mut mesh = Mesh::default();
+        self.instance_into(c, extent, &mut mesh)?;
+        Ok(mesh)
+    }
+
+    /// Like [`instance`](Self::instance) into a reused mesh: positions and colours are
+    /// overwritten; triangles and UVs are copied only when they differ from what the mesh
+    /// already holds (a compare is cheaper than a copy into fresh memory). Normals are cleared.
+    pub fn instance_into(
+        &self,
+        c: &Coefficients,
+        extent: Extent,
+        mesh: &mut Mesh,
+    ) -> Result<(), ModelError> {
+        self.shape_into(&c.identity, &c.expression, extent, &mut mesh.positions)?;
+        let colors = mesh.colors.get_or_insert_with(Vec::new);
+        self.albedo_into(&c.albedo, extent, colors)?;
+        let n = mesh.positions.len();
+        let tris = self.extent_triangles(extent);
+        if mesh.triangles != tris {
+            mesh.triangles.clear();
+            mesh.triangles.extend_from_slice(tris);
+        }
+        let uvs = mesh.uvs.get_or_insert_with(Vec::new);
+        if uvs[..] != self.vertex_uvs[..n] {
+            uvs.clear();
+            uvs.extend_from_slice(&self.vertex_uvs[..n]);
+        }
+        mesh.normals = None;
+        Ok(())
     }
 }
 

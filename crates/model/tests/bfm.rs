@@ -3,6 +3,8 @@
 //! (compressed and not, several storage types, small-element names), `Exp_Pca.bin`,
 //! `std_exp.txt`, `BFM_exp_idx.mat`.
 
+#![allow(clippy::needless_range_loop)] // index loops mirror the formulas
+
 use std::io::Write;
 use std::path::{Path, PathBuf};
 

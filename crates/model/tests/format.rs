@@ -1,5 +1,7 @@
 //! The model file: round trips, and refusal (never a panic) of every kind of invalid file.
 
+#![allow(clippy::needless_range_loop)] // index loops mirror the formulas
+
 use std::collections::HashMap;
 
 use facerecon_model::morphable::FORMAT_VERSION;

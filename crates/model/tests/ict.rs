@@ -307,3 +307,66 @@ fn shape_and_albedo_with_many_modes_match_a_naive_sum() {
     // Outside the face area the albedo is the region's constant.
     assert_eq!(alb[nf + 10], m.mean_albedo()[nf + 10]);
 }
+
+#[test]
+fn batched_shapes_equal_single_shapes() {
+    let m = ict::load_default().unwrap();
+    let l = m.layout();
+    let ids: Vec<Vec<f32>> = (0..5)
+        .map(|b| {
+            (0..l.identity)
+                .map(|k| ((k + b) % 5) as f32 * 0.3 - 0.6)
+                .collect()
+        })
+        .collect();
+    let exs: Vec<Vec<f32>> = (0..5)
+        .map(|b| {
+            (0..l.expression)
+                .map(|k| if (k + b) % 4 == 0 { 0.8 } else { 0.0 })
+                .collect()
+        })
+        .collect();
+    let idr: Vec<&[f32]> = ids.iter().map(|v| v.as_slice()).collect();
+    let exr: Vec<&[f32]> = exs.iter().map(|v| v.as_slice()).collect();
+    for extent in [Extent::Face, Extent::Full] {
+        let batch = m.shape_batch(&idr, &exr, extent).unwrap();
+        for b in 0..5 {
+            let one = m.shape(&ids[b], &exs[b], extent).unwrap();
+            let err = one
+                .iter()
+                .flatten()
+                .zip(batch[b].iter().flatten())
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0, f32::max);
+            assert!(err < 1e-3, "face {b}: {err} mm (summation order differs)");
+        }
+    }
+    let bad = vec![0.0f32; 3];
+    assert!(m.shape_batch(&[&bad], &[&exs[0]], Extent::Face).is_err());
+    assert!(m.shape_batch(&[&ids[0]], &[], Extent::Face).is_err());
+}
+
+#[test]
+fn instance_into_reuses_a_mesh_and_equals_instance() {
+    let m = ict::load_default().unwrap();
+    let mut c = Coefficients::neutral(m.layout(), 500.0);
+    let mut mesh = facerecon_model::Mesh::default();
+    for step in 0..3 {
+        c.identity[step] = 0.5;
+        c.expression[10 + step] = 0.3;
+        c.albedo[step] = 1.0;
+        let extent = if step == 1 {
+            Extent::Full
+        } else {
+            Extent::Face
+        };
+        m.instance_into(&c, extent, &mut mesh).unwrap();
+        let fresh = if step == 1 {
+            m.instance_full(&c)
+        } else {
+            m.instance(&c)
+        }
+        .unwrap();
+        assert!(mesh == fresh, "step {step}");
+    }
+}
