@@ -5,7 +5,7 @@ use facerecon_model::morphable::{Extent, Prior};
 use facerecon_model::scene::{self, Camera, Pose, pixel_to_ndc};
 use facerecon_model::{Coefficients, MorphableModel};
 use facerecon_raster::visibility::{BACKGROUND, VisibilityBuffer};
-use facerecon_raster::{cpu, job::RenderJob};
+use facerecon_raster::{Frame, cpu, job::RenderJob};
 use image::{GrayImage, RgbImage};
 
 use crate::background::random_background;
@@ -111,13 +111,12 @@ impl<'m> Generator<'m> {
         let cx = rng.range(margin.min(width as f32 / 2.0) as f64, (width as f32 - margin).max(width as f32 / 2.0) as f64) as f32;
         let cy = rng.range(margin.min(height as f32 / 2.0) as f64, (height as f32 - margin).max(height as f32 / 2.0) as f64) as f32;
 
-        let shape = model.shape(&identity, &expression, Extent::Full).map_err(SynthError::model)?;
+        let shape = model.shape(&identity, &expression, Extent::Face).map_err(SynthError::model)?;
         let rotation = euler.axis_angle();
-        let lm_idx = model.landmarks();
+                let lm_idx = model.landmarks();
         let lm_model: Vec<[f32; 3]> = lm_idx.iter().map(|&i| shape[i as usize]).collect();
         let mut camera = Camera { aspect: width as f32 / height as f32, ..Camera::default() };
-        let translation = place(&lm_model, rotation, &camera, width, height, [cx, cy], side);
-        let pose = Pose::new(rotation, translation);
+        let translation = place_face(&lm_model, rotation, &camera, width, height, [cx, cy], side);
         let depth = -translation[2];
         // Tight clip planes around the head: depth precision at any distance (x, y and the
         // pixel mapping do not depend on them).
@@ -125,21 +124,8 @@ impl<'m> Generator<'m> {
         camera.far = depth + 600.0;
 
         // --- render ------------------------------------------------------------------------
-        let positions = pose.apply(&shape);
-        let normals = scene::vertex_normals(&positions, &self.style.triangles);
-        let face_albedo = model.albedo(&albedo, Extent::Face).map_err(SynthError::model)?;
-        let head_albedo = self.style.albedo(&face_albedo, &part_colors);
-        let colors = scene::shade(&head_albedo, &normals, &light);
-        let job = RenderJob {
-            positions: &positions,
-            triangles: &self.style.triangles,
-            colors: &colors,
-            normals: &normals,
-            camera,
-            width,
-            height,
-        };
-        let frame = cpu::render(&job)?;
+        let coefficients = Coefficients { identity, expression, albedo, light, rotation, translation };
+        let (frame, positions) = self.render(&coefficients, &part_colors, camera, width, height)?;
         let vb = frame.visibility;
 
         let mut image = random_background(width, height, &mut bg_rng);
@@ -174,7 +160,6 @@ impl<'m> Generator<'m> {
         let landmark_box = PixelBox::of_points(landmarks.iter().map(|l| l.xy))
             .ok_or_else(|| SynthError::Config("the model has no landmarks".into()))?;
         let crop = Crop::of_box(&landmark_box);
-        let coefficients = Coefficients { identity, expression, albedo, light, rotation, translation };
         let stem = format!("{index:06}");
         let truth = GroundTruth {
             format: TRUTH_FORMAT.into(),
@@ -207,10 +192,42 @@ impl<'m> Generator<'m> {
     }
 }
 
+impl Generator<'_> {
+    /// Renders the full head of `c` (its pose, light and albedo) with `colors` for the
+    /// non-face parts: the frame (triangle ids index [`HeadStyle::triangles`]) and the
+    /// camera-space positions of every vertex.
+    pub fn render(
+        &self,
+        c: &Coefficients,
+        colors: &PartColors,
+        camera: Camera,
+        width: u32,
+        height: u32,
+    ) -> Result<(Frame, Vec<[f32; 3]>), SynthError> {
+        let model = self.model;
+        let shape = model.shape(&c.identity, &c.expression, Extent::Full).map_err(SynthError::model)?;
+        let positions = Pose::from_coefficients(c).apply(&shape);
+        let normals = scene::vertex_normals(&positions, &self.style.triangles);
+        let face_albedo = model.albedo(&c.albedo, Extent::Face).map_err(SynthError::model)?;
+        let head_albedo = self.style.albedo(&face_albedo, colors);
+        let shaded = scene::shade(&head_albedo, &normals, &c.light);
+        let job = RenderJob {
+            positions: &positions,
+            triangles: &self.style.triangles,
+            colors: &shaded,
+            normals: &normals,
+            camera,
+            width,
+            height,
+        };
+        Ok((cpu::render(&job)?, positions))
+    }
+}
+
 /// Translation that puts the landmarks' centroid on the ray through pixel `centre` at the
 /// distance where their crop (see [`Crop`]) is `side` pixels: solved on the projection
 /// itself (two fixed-point rounds: the crop side is ∝ 1/distance up to perspective).
-fn place(lm: &[[f32; 3]], rotation: [f32; 3], camera: &Camera, w: u32, h: u32, centre: [f32; 2], side: f32) -> [f32; 3] {
+pub fn place_face(lm: &[[f32; 3]], rotation: [f32; 3], camera: &Camera, w: u32, h: u32, centre: [f32; 2], side: f32) -> [f32; 3] {
     let r = scene::rotation_matrix(rotation);
     let n = lm.len() as f32;
     let anchor = lm.iter().fold(glam::Vec3::ZERO, |a, p| a + glam::Vec3::from(*p)) / n;

@@ -19,6 +19,7 @@ pub mod expression;
 pub mod generator;
 pub mod head;
 pub mod light;
+pub mod lit;
 pub mod output;
 pub mod pose;
 pub mod rng;
