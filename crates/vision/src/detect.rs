@@ -233,14 +233,15 @@ impl ViolaJones {
         self.detect_grey(&Grey::from_rgb(image))
     }
 
-    /// Each cascade's grouped faces on a grey image.
-    pub fn detect_grey(&self, grey: &Grey) -> Vec<Vec<CascadeFace>> {
-        let p = &self.params;
+    /// Each cascade's raw window hits (source-pixel rectangles and last-stage margins)
+    /// on a grey image, before grouping.
+    pub fn scan_grey(&self, grey: &Grey) -> Vec<Vec<(Rect, f32)>> {
         let (iw, ih) = (grey.width, grey.height);
         let nc = self.cascades.len();
         if iw == 0 || ih == 0 {
             return vec![Vec::new(); nc];
         }
+        let p = &self.params;
         let min_face = (p.min_size as f32).max(p.min_size_fraction * iw.min(ih) as f32);
         let max_face = p.max_size.map_or(f32::INFINITY, |m| m as f32);
         let min_win = self.cascades.iter().map(|c| c.cascade.width.min(c.cascade.height)).min().unwrap_or(1);
@@ -267,7 +268,7 @@ impl ViolaJones {
         };
         let all: Vec<f32> = all
             .into_iter()
-            .filter(|&f| f64::from(f) >= kf * 0.999 && self.cascades.iter().any(|c| wanted(&c.cascade, f)))
+            .filter(|&f| f64::from(f) >= kf * 0.95 && self.cascades.iter().any(|c| wanted(&c.cascade, f)))
             .collect();
         let squared = self.cascades.iter().any(|c| c.cascade.feature_type == cascade::FeatureType::Haar);
         let tilted = self.cascades.iter().any(|c| c.cascade.has_tilted());
@@ -319,32 +320,48 @@ impl ViolaJones {
         for (ci, h) in hits {
             per[ci].extend(h);
         }
-        per.into_par_iter()
-            .map(|h| {
-                group::group_rectangles(&h, p.min_neighbors, 0.2)
-                    .into_iter()
-                    .map(|g| CascadeFace { x: g.rect.x, y: g.rect.y, w: g.rect.w, h: g.rect.h, neighbors: g.neighbors, margin: g.margin })
-                    .collect()
-            })
+        per
+    }
+
+    /// Groups one cascade's raw hits into faces (OpenCV's `groupRectangles`, eps 0.2).
+    pub fn group(hits: &[(Rect, f32)], min_neighbors: usize) -> Vec<CascadeFace> {
+        group::group_rectangles(hits, min_neighbors, 0.2)
+            .into_iter()
+            .map(|g| CascadeFace { x: g.rect.x, y: g.rect.y, w: g.rect.w, h: g.rect.h, neighbors: g.neighbors, margin: g.margin })
             .collect()
+    }
+
+    /// Each cascade's grouped faces on a grey image.
+    pub fn detect_grey(&self, grey: &Grey) -> Vec<Vec<CascadeFace>> {
+        let mn = self.params.min_neighbors;
+        self.scan_grey(grey).par_iter().map(|h| Self::group(h, mn)).collect()
     }
 
     /// All faces, merged across cascades by non-maximum suppression, best first.
     /// Score = the number of raw window hits merged into the face (OpenCV's neighbours).
     pub fn detect_faces(&self, image: &RgbImage) -> Vec<Detection> {
         let per = self.detect_per_cascade(image);
+        let names: Vec<&str> = self.cascades.iter().map(|c| c.name.as_str()).collect();
+        merge(&names, per, &self.params)
+    }
+}
+
+/// Merges the grouped faces of several cascades (named by `names`) by non-maximum
+/// suppression, best first.
+pub fn merge(names: &[&str], per_cascade: Vec<Vec<CascadeFace>>, params: &DetectorParams) -> Vec<Detection> {
+    {
         let mut all = Vec::new();
-        for (c, faces) in self.cascades.iter().zip(per) {
+        for (c, faces) in names.iter().zip(per_cascade) {
             for f in faces {
                 all.push(Detection {
                     // OpenCV rectangles cover pixels x..x+w−1: inclusive corners.
                     face_box: FaceBox { x0: f.x as f32, y0: f.y as f32, x1: (f.x + f.w - 1) as f32, y1: (f.y + f.h - 1) as f32 },
                     score: f.neighbors as f32,
-                    source: c.name.clone(),
+                    source: c.to_string(),
                 });
             }
         }
-        group::nms(all, |d| (d.face_box, d.score), self.params.nms_iou, self.params.nms_containment)
+        group::nms(all, |d| (d.face_box, d.score), params.nms_iou, params.nms_containment)
     }
 }
 
