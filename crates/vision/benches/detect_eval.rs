@@ -112,10 +112,8 @@ fn tune(photos: &[Photo], dir: &std::path::Path) {
     let frac: f32 = std::env::var("DETECT_MIN_FRACTION").ok().and_then(|s| s.parse().ok()).unwrap_or(0.0);
     let files = [
         ("frontal", detect::FRONTAL_HAAR, false),
-        ("alt", detect::FRONTAL_HAAR_ALT, false),
         ("alt2", detect::FRONTAL_HAAR_ALT2, false),
         ("profile", detect::PROFILE_HAAR, true),
-        ("lbp", detect::FRONTAL_LBP, false),
         ("lbp-improved", detect::FRONTAL_LBP_IMPROVED, false),
         ("lbp-profile", detect::PROFILE_LBP, true),
     ];
@@ -126,14 +124,23 @@ fn tune(photos: &[Photo], dir: &std::path::Path) {
     let names: Vec<String> = det.cascades().iter().map(|c| c.name.clone()).collect();
     println!("cascades: {names:?}, scale {sf}, min fraction {frac}");
     let t = Instant::now();
-    let hits: Vec<Vec<Vec<(Rect, f32)>>> = photos.par_iter().map(|p| det.scan_grey(&Grey::from_rgb(&load(&p.rel)))).collect();
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    let hits: Vec<Vec<Vec<(Rect, f32)>>> = photos
+        .par_iter()
+        .map(|p| {
+            let h = det.scan_grey(&Grey::from_rgb(&load(&p.rel)));
+            let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+            if n % 50 == 0 {
+                eprintln!("{n} photos scanned, {:.0} s", t.elapsed().as_secs_f64());
+            }
+            h
+        })
+        .collect();
     println!("scanned in {:.1} s", t.elapsed().as_secs_f64());
     let idx = |n: &str| names.iter().position(|x| x == n).unwrap();
     let combos: Vec<(&str, Vec<&str>)> = vec![
         ("frontal", vec!["haarcascade_frontalface_default"]),
-        ("alt", vec!["haarcascade_frontalface_alt"]),
         ("alt2", vec!["haarcascade_frontalface_alt2"]),
-        ("lbp", vec!["lbpcascade_frontalface"]),
         ("lbp-improved", vec!["lbpcascade_frontalface_improved"]),
         ("frontal+profile×2", vec!["haarcascade_frontalface_default", "haarcascade_profileface", "haarcascade_profileface-mirrored"]),
         ("alt2+profile×2", vec!["haarcascade_frontalface_alt2", "haarcascade_profileface", "haarcascade_profileface-mirrored"]),

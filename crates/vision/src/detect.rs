@@ -78,7 +78,9 @@ pub struct DetectorParams {
     /// Smallest face side sought, in pixels. Default 24.
     pub min_size: u32,
     /// Smallest face side as a fraction of the image's shorter side; the larger of this and
-    /// `min_size` applies. Default 0 (no relative limit).
+    /// `min_size` applies. Default 0.1: 48 px in a 640 × 480 photo, the size below which a
+    /// face only reaches the lowest resolution bucket; it bounds the work on large photos
+    /// (with `prefilter`). Set 0 to find every face down to `min_size` (slower).
     pub min_size_fraction: f32,
     /// Largest face side sought, in pixels (`None`: the image size).
     pub max_size: Option<u32>,
@@ -100,7 +102,7 @@ impl Default for DetectorParams {
             scale_factor: 1.1,
             min_neighbors: 3,
             min_size: 24,
-            min_size_fraction: 0.0,
+            min_size_fraction: 0.1,
             max_size: None,
             prefilter: true,
             nms_iou: 0.3,
@@ -110,10 +112,10 @@ impl Default for DetectorParams {
 }
 
 impl DetectorParams {
-    /// OpenCV's `detectMultiScale` defaults as used for the reference figure: scale 1.1,
-    /// 3 neighbours, min size 24, no prefilter.
+    /// OpenCV's `detectMultiScale` settings of the reference figure: scale 1.1,
+    /// 3 neighbours, min size 24 px, no relative minimum, no prefilter.
     pub fn opencv() -> Self {
-        DetectorParams { prefilter: false, ..Default::default() }
+        DetectorParams { prefilter: false, min_size_fraction: 0.0, ..Default::default() }
     }
 
     fn validate(&self) -> Result<(), DetectError> {

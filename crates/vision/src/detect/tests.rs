@@ -263,5 +263,6 @@ fn bad_params_are_refused() {
     let mut det = ViolaJones::load_default().unwrap();
     assert!(det.set_params(DetectorParams { scale_factor: 1.0, ..Default::default() }).is_err());
     assert!(det.set_params(DetectorParams { min_size_fraction: 2.0, ..Default::default() }).is_err());
+    assert_eq!(DetectorParams::opencv().min_size_fraction, 0.0);
     assert!(det.set_params(DetectorParams::opencv()).is_ok());
 }
