@@ -177,9 +177,32 @@ fn raster_triangle(
     }
 }
 
-/// Pass 2 on the CPU: interpolates colours and normals over a visibility buffer.
-pub fn resolve(job: &RenderJob, vb: VisibilityBuffer) -> Frame {
+/// Pass 2 on the CPU: interpolates colours and normals over a visibility buffer of this
+/// job (same size, ids naming the job's triangles; anything else is an error).
+pub fn resolve(job: &RenderJob, vb: VisibilityBuffer) -> Result<Frame, RenderError> {
+    job.validate(0)?;
     let n = vb.triangle.len();
+    let px = job.pixel_count();
+    if (vb.width, vb.height) != (job.width, job.height)
+        || n != px
+        || vb.bary.len() != px
+        || vb.depth.len() != px
+    {
+        return Err(RenderError::SizeMismatch(format!(
+            "visibility buffer {}×{} ({n} ids) for a {}×{} job",
+            vb.width, vb.height, job.width, job.height
+        )));
+    }
+    if let Some(&t) = vb
+        .triangle
+        .iter()
+        .find(|&&t| t != BACKGROUND && t as usize >= job.triangles.len())
+    {
+        return Err(RenderError::InvalidArgument(format!(
+            "visibility buffer names triangle {t}, the job has {}",
+            job.triangles.len()
+        )));
+    }
     let mut color = vec![[0u8; 4]; n];
     let mut normal = vec![[0.0f32; 3]; n];
     for i in 0..n {
@@ -204,11 +227,11 @@ pub fn resolve(job: &RenderJob, vb: VisibilityBuffer) -> Frame {
         let nv = glam::Vec3::from(interp(job.normals));
         normal[i] = nv.normalize_or_zero().to_array();
     }
-    Frame {
+    Ok(Frame {
         visibility: vb,
         color,
         normal,
-    }
+    })
 }
 
 /// `floor(0.5 + 255·clamp(c, 0, 1))`, WGSL's `pack4x8unorm` per channel.
@@ -219,5 +242,5 @@ pub fn unorm8(c: f32) -> u8 {
 /// Rasterises and resolves one job on the CPU.
 pub fn render(job: &RenderJob) -> Result<Frame, RenderError> {
     let vb = rasterize(job)?;
-    Ok(resolve(job, vb))
+    resolve(job, vb)
 }

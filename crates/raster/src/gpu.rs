@@ -397,8 +397,18 @@ impl Renderer {
     /// job fails the call, naming it); a batch larger than the device's limits is split into
     /// several submissions.
     pub fn render(&mut self, jobs: &[RenderJob]) -> Result<Vec<Frame>, RenderError> {
+        let max_side = self.limits.max_texture_dimension_2d;
         for (i, j) in jobs.iter().enumerate() {
             j.validate(i)?;
+            if j.width > max_side || j.height > max_side {
+                return Err(RenderError::InvalidJob {
+                    job: i,
+                    message: format!(
+                        "{}×{} exceeds the device's {max_side}-pixel textures",
+                        j.width, j.height
+                    ),
+                });
+            }
         }
         let max_bytes = self.max_buffer_bytes();
         let mut frames = Vec::with_capacity(jobs.len());

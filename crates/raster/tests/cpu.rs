@@ -119,6 +119,19 @@ fn bad_input_is_an_error_not_a_panic() {
         },
         "camera",
     );
+    // resolve() refuses a visibility buffer of another job.
+    let vb = cpu::rasterize(&ok).unwrap();
+    assert!(matches!(
+        cpu::resolve(&RenderJob { width: 8, ..ok }, vb.clone()),
+        Err(RenderError::SizeMismatch(_))
+    ));
+    let mut wrong = vb.clone();
+    wrong.triangle[0] = 1000;
+    assert!(matches!(
+        cpu::resolve(&ok, wrong),
+        Err(RenderError::InvalidArgument(_))
+    ));
+    assert!(cpu::resolve(&ok, vb).is_ok());
     // No triangles: all background, not an error.
     let vb = cpu::rasterize(&RenderJob {
         triangles: &[],
