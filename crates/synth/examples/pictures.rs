@@ -41,12 +41,10 @@ fn key_light() -> [[f32; 3]; 25] {
     let (a, beta) = (0.9f32, 0.55f32);
     let d = glam::Vec3::new(-0.35, 0.45, 0.82).normalize();
     let y1 = 0.488_602_5f32;
-    for c in 0..3 {
-        w[0][c] *= a;
-        w[1][c] = a * beta * d.y / y1;
-        w[2][c] = a * beta * d.z / y1;
-        w[3][c] = a * beta * d.x / y1;
-    }
+    w[0] = w[0].map(|x| x * a);
+    w[1] = [a * beta * d.y / y1; 3];
+    w[2] = [a * beta * d.z / y1; 3];
+    w[3] = [a * beta * d.x / y1; 3];
     w
 }
 
