@@ -1,1 +1,159 @@
-fn main(){}
+//! Coefficients → face-area geometry and colour for the ICT model (DESIGN §9: coefficients →
+//! lit mesh < 1 ms on one core). `stream_reference` reads the same bytes as a dense
+//! `shape_face` with a plain sum, so the ratio shows how close to memory bandwidth we are.
+//!
+//! Times are CPU time of the benchmark thread (see `CpuTime`).
+//!
+//! Run: `cargo bench -p facerecon-model --bench shape`
+
+use std::hint::black_box;
+
+use std::time::Duration;
+
+use criterion::measurement::{Measurement, ValueFormatter, WallTime};
+use criterion::{Criterion, criterion_group, criterion_main};
+use facerecon_model::{Coefficients, Extent, MorphableModel, ict};
+
+/// Thread CPU time: the build machines are shared (load ≫ cores), so wall time mostly
+/// measures the scheduler; CPU time of the benchmark thread is what one core spends.
+struct CpuTime;
+
+fn thread_cpu() -> Duration {
+    let mut t = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: valid pointer to a timespec; CLOCK_THREAD_CPUTIME_ID is always available on Linux.
+    unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut t) };
+    Duration::new(t.tv_sec as u64, t.tv_nsec as u32)
+}
+
+static WALL: WallTime = WallTime;
+
+impl Measurement for CpuTime {
+    type Intermediate = Duration;
+    type Value = Duration;
+    fn start(&self) -> Duration {
+        thread_cpu()
+    }
+    fn end(&self, i: Duration) -> Duration {
+        thread_cpu() - i
+    }
+    fn add(&self, a: &Duration, b: &Duration) -> Duration {
+        *a + *b
+    }
+    fn zero(&self) -> Duration {
+        Duration::ZERO
+    }
+    fn to_f64(&self, v: &Duration) -> f64 {
+        v.as_nanos() as f64
+    }
+    fn formatter(&self) -> &dyn ValueFormatter {
+        WALL.formatter()
+    }
+}
+
+fn bench(c: &mut Criterion<CpuTime>) {
+    // FACERECON_BENCH_MODEL: a model file to use instead of the default (e.g. on a machine
+    // without the shared folder).
+    let m = match std::env::var_os("FACERECON_BENCH_MODEL") {
+        Some(p) => std::sync::Arc::new(MorphableModel::load(p).expect("model file")),
+        None => ict::load_default().expect("ICT model (shared data)"),
+    };
+    let layout = m.layout();
+    let id: Vec<f32> = (0..layout.identity)
+        .map(|k| ((k % 7) as f32 - 3.0) * 0.3)
+        .collect();
+    let dense_ex: Vec<f32> = (0..layout.expression)
+        .map(|k| 0.1 + (k % 5) as f32 * 0.15)
+        .collect();
+    let mut sparse_ex = vec![0.0; layout.expression];
+    for k in [3, 11, 26, 40, 45] {
+        sparse_ex[k] = 0.6;
+    }
+    let tex: Vec<f32> = (0..layout.albedo)
+        .map(|k| ((k % 5) as f32 - 2.0) * 0.4)
+        .collect();
+    let mut out = Vec::new();
+
+    let mut g = c.benchmark_group("ict_face");
+    g.bench_function("shape_face_dense", |b| {
+        b.iter(|| {
+            m.shape_into(black_box(&id), black_box(&dense_ex), Extent::Face, &mut out)
+                .unwrap()
+        })
+    });
+    g.bench_function("shape_face_5_expressions", |b| {
+        b.iter(|| {
+            m.shape_into(
+                black_box(&id),
+                black_box(&sparse_ex),
+                Extent::Face,
+                &mut out,
+            )
+            .unwrap()
+        })
+    });
+    g.bench_function("albedo_face", |b| {
+        b.iter(|| m.albedo(black_box(&tex), Extent::Face).unwrap())
+    });
+    // 16 different dense faces in one call (report per face = time / 16).
+    let ids: Vec<Vec<f32>> = (0..16)
+        .map(|b| id.iter().map(|x| x * (1.0 - b as f32 * 0.05)).collect())
+        .collect();
+    let exs: Vec<Vec<f32>> = (0..16)
+        .map(|b| {
+            dense_ex
+                .iter()
+                .map(|x| x * (1.0 - b as f32 * 0.05))
+                .collect()
+        })
+        .collect();
+    let id_refs: Vec<&[f32]> = ids.iter().map(|v| v.as_slice()).collect();
+    let ex_refs: Vec<&[f32]> = exs.iter().map(|v| v.as_slice()).collect();
+    g.bench_function("shape_batch16_dense", |b| {
+        b.iter(|| {
+            m.shape_batch(black_box(&id_refs), black_box(&ex_refs), Extent::Face)
+                .unwrap()
+        })
+    });
+    let mut coeffs = Coefficients::neutral(layout, 500.0);
+    coeffs.identity = id.clone();
+    coeffs.expression = sparse_ex.clone();
+    coeffs.albedo = tex.clone();
+    g.bench_function("instance_face", |b| {
+        b.iter(|| m.instance(black_box(&coeffs)).unwrap())
+    });
+    let mut mesh = facerecon_model::Mesh::default();
+    g.bench_function("instance_into_face", |b| {
+        b.iter(|| {
+            m.instance_into(black_box(&coeffs), Extent::Face, &mut mesh)
+                .unwrap()
+        })
+    });
+
+    // Same bytes as shape_face_dense, each mode copied into an L2-resident buffer: the
+    // "read every byte once" reference.
+    let nf3 = m.face_vertex_count() * 3;
+    let n3 = m.vertex_count() * 3;
+    let p = m.parts();
+    let mut buf = vec![0.0f32; nf3];
+    g.bench_function("stream_reference", |b| {
+        b.iter(|| {
+            for basis in [&p.identity_basis, &p.expression_basis] {
+                for mode in basis.chunks_exact(n3) {
+                    buf.copy_from_slice(&mode[..nf3]);
+                    black_box(&mut buf);
+                }
+            }
+        })
+    });
+    g.finish();
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default().with_measurement(CpuTime);
+    targets = bench
+}
+criterion_main!(benches);

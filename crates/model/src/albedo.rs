@@ -119,7 +119,9 @@ fn inside_xy(p: [f32; 3], poly: &[[f32; 3]]) -> bool {
     let mut j = poly.len() - 1;
     for i in 0..poly.len() {
         let (a, b) = (poly[i], poly[j]);
-        if (a[1] > p[1]) != (b[1] > p[1]) && p[0] < (b[0] - a[0]) * (p[1] - a[1]) / (b[1] - a[1]) + a[0] {
+        if (a[1] > p[1]) != (b[1] > p[1])
+            && p[0] < (b[0] - a[0]) * (p[1] - a[1]) / (b[1] - a[1]) + a[0]
+        {
             inside = !inside;
         }
         j = i;
@@ -166,10 +168,7 @@ pub fn mean_albedo(input: &AlbedoInput) -> Vec<f32> {
         1.0 - smoothstep(2.0, 7.0, d)
     };
     // Cheeks: Gaussian blobs between the jaw and the nose wings.
-    let cheeks = [
-        mid(lm(2), lm(31)),
-        mid(lm(14), lm(35)),
-    ];
+    let cheeks = [mid(lm(2), lm(31)), mid(lm(14), lm(35))];
     let blush = |q: [f32; 3]| {
         cheeks
             .iter()
@@ -239,8 +238,13 @@ pub fn colour_covariance() -> [[f64; 3]; 3] {
 /// Farthest-point sampling of `m` of the points, starting at the point nearest the centroid.
 fn farthest_points(p: &[[f64; 3]], m: usize) -> Vec<usize> {
     let n = p.len();
-    let c = p.iter().fold([0.0; 3], |s, q| [s[0] + q[0], s[1] + q[1], s[2] + q[2]]).map(|x| x / n as f64);
-    let d = |a: [f64; 3], b: [f64; 3]| (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2);
+    let c = p
+        .iter()
+        .fold([0.0; 3], |s, q| [s[0] + q[0], s[1] + q[1], s[2] + q[2]])
+        .map(|x| x / n as f64);
+    let d = |a: [f64; 3], b: [f64; 3]| {
+        (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)
+    };
     let mut first = 0;
     for i in 0..n {
         if d(p[i], c) < d(p[first], c) {
@@ -269,7 +273,9 @@ fn sorted_eigen(m: DMatrix<f64>) -> (Vec<f64>, DMatrix<f64>) {
     let mut order: Vec<usize> = (0..e.eigenvalues.len()).collect();
     order.sort_by(|&a, &b| e.eigenvalues[b].total_cmp(&e.eigenvalues[a]));
     let vals = order.iter().map(|&i| e.eigenvalues[i]).collect();
-    let vecs = DMatrix::from_fn(e.eigenvectors.nrows(), order.len(), |r, c| e.eigenvectors[(r, order[c])]);
+    let vecs = DMatrix::from_fn(e.eigenvectors.nrows(), order.len(), |r, c| {
+        e.eigenvectors[(r, order[c])]
+    });
     (vals, vecs)
 }
 
@@ -283,11 +289,15 @@ pub fn gp_basis(face: &[[f32; 3]]) -> Result<(Vec<f32>, BuildReport), ModelError
 
     let ind = farthest_points(&p, INDUCING);
     let m = ind.len();
-    let kmm = DMatrix::from_fn(m, m, |a, b| k(ind[a], ind[b]) + if a == b { 1e-8 } else { 0.0 });
+    let kmm = DMatrix::from_fn(m, m, |a, b| {
+        k(ind[a], ind[b]) + if a == b { 1e-8 } else { 0.0 }
+    });
     let (d, v) = sorted_eigen(kmm);
     let keep = d.iter().take_while(|&&x| x > d[0] * 1e-10).count();
     if keep == 0 {
-        return Err(ModelError::Numeric("inducing kernel matrix has no positive eigenvalue".into()));
+        return Err(ModelError::Numeric(
+            "inducing kernel matrix has no positive eigenvalue".into(),
+        ));
     }
     // V D^{-1/2}, m × keep.
     let vd = DMatrix::from_fn(m, keep, |r, c| v[(r, c)] / d[c].sqrt());

@@ -9,7 +9,7 @@
 //! Tensors (little-endian): `mean_shape` F32 [N,3]; `identity_basis` F32 [K_id,N,3];
 //! `expression_basis` F32 [K_exp,N,3]; `mean_albedo` F32 [N,3]; `albedo_basis`
 //! F32 [K_tex,N_face,3]; `triangles` U32 [T,3]; `uvs` F32 [N_uv,2]; `uv_triangles` U32 [T,3];
-//! `landmarks` U32 [68]; `symmetry` U32 [N]; `region_ids` U8 [N]; `mask.<name>` U8 [N]
+//! `landmarks` U32 [68] (or [0]: not annotated); `symmetry` U32 [N]; `region_ids` U8 [N]; `mask.<name>` U8 [N]
 //! for face, narrow_face, eyes, mouth, nose_tip.
 //!
 //! Everything is validated before a [`MorphableModel`] exists: container structure (by the
@@ -23,9 +23,7 @@ use std::path::Path;
 use safetensors::{Dtype, SafeTensors, View};
 
 use crate::error::ModelError;
-use crate::morphable::{
-    Block, FORMAT_VERSION, Mask, ModelMeta, ModelParts, MorphableModel, Prior,
-};
+use crate::morphable::{Block, FORMAT_VERSION, Mask, ModelMeta, ModelParts, MorphableModel, Prior};
 
 /// Sanity limits on counts read from a header (far above any real face model).
 pub struct Limits {
@@ -42,7 +40,7 @@ pub const LIMITS: Limits = Limits {
     max_uvs: 1 << 23,
 };
 
-/// Number of landmarks every model carries (iBUG 300-W 68-point markup).
+/// Number of landmarks a model carries (iBUG 300-W 68-point markup), or none at all.
 pub const LANDMARK_COUNT: usize = 68;
 
 impl MorphableModel {
@@ -331,12 +329,7 @@ pub(crate) fn decode(bytes: &[u8]) -> Result<MorphableModel, ModelError> {
         .as_ref()
         .ok_or_else(|| ModelError::Header("no `__metadata__` section".into()))?;
     let meta = header_meta(md)?;
-    if meta.units != "mm" {
-        return Err(ModelError::Header(format!(
-            "units {:?}: only \"mm\" is supported",
-            meta.units
-        )));
-    }
+    validate_meta(&meta)?;
     let r = Reader { st };
     let n = meta.vertex_count;
     let nf = meta.face_vertex_count;
@@ -354,11 +347,7 @@ pub(crate) fn decode(bytes: &[u8]) -> Result<MorphableModel, ModelError> {
         mean_albedo: r.f32s("mean_albedo", &[n, 3])?,
         albedo_basis: r.f32s("albedo_basis", &[meta.albedo.count, nf, 3])?,
         triangles: tri(r.u32s("triangles", &[t, 3])?),
-        uvs: r
-            .f32s("uvs", &[n_uv, 2])?
-            .as_chunks::<2>()
-            .0
-            .to_vec(),
+        uvs: r.f32s("uvs", &[n_uv, 2])?.as_chunks::<2>().0.to_vec(),
         uv_triangles: tri(r.u32s("uv_triangles", &[t, 3])?),
         landmarks: r.u32s("landmarks", &[n_lm])?,
         symmetry: r.u32s("symmetry", &[n])?,
@@ -398,8 +387,8 @@ fn len(name: &str, got: usize, expected: usize) -> Result<(), ModelError> {
     Ok(())
 }
 
-/// Checks every invariant of a model (shared by the loader, `save` and the importers).
-pub(crate) fn validate(meta: &ModelMeta, p: &ModelParts) -> Result<(), ModelError> {
+/// Checks the header on its own (before any tensor is read).
+pub(crate) fn validate_meta(meta: &ModelMeta) -> Result<(), ModelError> {
     let n = meta.vertex_count;
     let nf = meta.face_vertex_count;
     let t = meta.triangle_count;
@@ -408,10 +397,16 @@ pub(crate) fn validate(meta: &ModelMeta, p: &ModelParts) -> Result<(), ModelErro
         return inv(format!("units {:?}, expected \"mm\"", meta.units));
     }
     if n == 0 || n > LIMITS.max_vertices {
-        return inv(format!("vertex count {n} (must be 1..={})", LIMITS.max_vertices));
+        return inv(format!(
+            "vertex count {n} (must be 1..={})",
+            LIMITS.max_vertices
+        ));
     }
     if t == 0 || t > LIMITS.max_triangles {
-        return inv(format!("triangle count {t} (must be 1..={})", LIMITS.max_triangles));
+        return inv(format!(
+            "triangle count {t} (must be 1..={})",
+            LIMITS.max_triangles
+        ));
     }
     if nf == 0 || nf > n {
         return inv(format!("face vertex count {nf} not in 1..={n}"));
@@ -428,11 +423,13 @@ pub(crate) fn validate(meta: &ModelMeta, p: &ModelParts) -> Result<(), ModelErro
         ("albedo", meta.albedo),
     ] {
         if b.count > LIMITS.max_modes {
-            return inv(format!("{name} has {} modes (limit {})", b.count, LIMITS.max_modes));
+            return inv(format!(
+                "{name} has {} modes (limit {})",
+                b.count, LIMITS.max_modes
+            ));
         }
     }
-    if !meta.expression_names.is_empty() && meta.expression_names.len() != meta.expression.count
-    {
+    if !meta.expression_names.is_empty() && meta.expression_names.len() != meta.expression.count {
         return inv(format!(
             "{} expression names for {} expression modes",
             meta.expression_names.len(),
@@ -440,8 +437,20 @@ pub(crate) fn validate(meta: &ModelMeta, p: &ModelParts) -> Result<(), ModelErro
         ));
     }
     if meta.region_names.is_empty() || meta.region_names.len() > 256 {
-        return inv(format!("{} region names (must be 1..=256)", meta.region_names.len()));
+        return inv(format!(
+            "{} region names (must be 1..=256)",
+            meta.region_names.len()
+        ));
     }
+    Ok(())
+}
+
+/// Checks every invariant of a model (shared by the loader, `save` and the importers).
+pub(crate) fn validate(meta: &ModelMeta, p: &ModelParts) -> Result<(), ModelError> {
+    validate_meta(meta)?;
+    let n = meta.vertex_count;
+    let nf = meta.face_vertex_count;
+    let t = meta.triangle_count;
     len("mean_shape", p.mean_shape.len(), n * 3)?;
     len(
         "identity_basis",
@@ -454,10 +463,17 @@ pub(crate) fn validate(meta: &ModelMeta, p: &ModelParts) -> Result<(), ModelErro
         meta.expression.count * n * 3,
     )?;
     len("mean_albedo", p.mean_albedo.len(), n * 3)?;
-    len("albedo_basis", p.albedo_basis.len(), meta.albedo.count * nf * 3)?;
+    len(
+        "albedo_basis",
+        p.albedo_basis.len(),
+        meta.albedo.count * nf * 3,
+    )?;
     len("triangles", p.triangles.len(), t)?;
     len("uv_triangles", p.uv_triangles.len(), t)?;
-    len("landmarks", p.landmarks.len(), LANDMARK_COUNT)?;
+    if !p.landmarks.is_empty() {
+        // Models without landmark annotations (e.g. BFM without a landmark file) hold none.
+        len("landmarks", p.landmarks.len(), LANDMARK_COUNT)?;
+    }
     len("symmetry", p.symmetry.len(), n)?;
     len("region_ids", p.region_ids.len(), n)?;
     for (m, v) in Mask::ALL.iter().zip(&p.masks) {
@@ -499,7 +515,10 @@ pub(crate) fn validate(meta: &ModelMeta, p: &ModelParts) -> Result<(), ModelErro
             ),
         ));
     }
-    if let Some(i) = p.triangles.iter().position(|t| t[0] == t[1] || t[1] == t[2] || t[0] == t[2])
+    if let Some(i) = p
+        .triangles
+        .iter()
+        .position(|t| t[0] == t[1] || t[1] == t[2] || t[0] == t[2])
     {
         return Err(ModelError::tensor(
             "triangles",
@@ -507,4 +526,36 @@ pub(crate) fn validate(meta: &ModelMeta, p: &ModelParts) -> Result<(), ModelErro
         ));
     }
     Ok(())
+}
+
+/// One tensor of a model file, as listed by [`tensor_summary`].
+#[derive(Clone, Debug)]
+pub struct TensorSummary {
+    pub name: String,
+    pub dtype: String,
+    pub shape: Vec<usize>,
+    pub bytes: usize,
+}
+
+/// Lists the tensors of a safetensors container in file order (for `facerecon model info`).
+pub fn tensor_summary(bytes: &[u8]) -> Result<Vec<TensorSummary>, ModelError> {
+    let (_, header) =
+        SafeTensors::read_metadata(bytes).map_err(|e| ModelError::Container(e.to_string()))?;
+    let infos = header.tensors();
+    let mut out: Vec<(usize, TensorSummary)> = infos
+        .into_iter()
+        .map(|(name, info)| {
+            (
+                info.data_offsets.0,
+                TensorSummary {
+                    name,
+                    dtype: format!("{:?}", info.dtype),
+                    shape: info.shape.clone(),
+                    bytes: info.data_offsets.1 - info.data_offsets.0,
+                },
+            )
+        })
+        .collect();
+    out.sort_by_key(|(o, t)| (*o, t.name.clone()));
+    Ok(out.into_iter().map(|(_, t)| t).collect())
 }

@@ -20,9 +20,9 @@ use std::sync::{Arc, Mutex};
 use crate::albedo;
 use crate::error::ModelError;
 use crate::morphable::{
-    Block, FORMAT_VERSION, Mask, ModelMeta, ModelParts, MorphableModel, Prior, as_vec3,
+    Block, FORMAT_VERSION, ModelMeta, ModelParts, MorphableModel, Prior, as_vec3,
 };
-use crate::{npy, obj, symmetry};
+use crate::{npy, obj, regions, symmetry};
 
 /// Bumped whenever the importer's output changes (part of the cache key).
 pub const IMPORTER_VERSION: &str = "ict-import-1";
@@ -64,9 +64,9 @@ const KEPT_POLYGONS: usize = 24_692;
 pub const README_LANDMARKS: [u32; 68] = [
     1225, 1888, 1052, 367, 1719, 1722, 2199, 1447, 966, 3661, 4390, 3927, 3924, 2608, 3272, 4088,
     3443, 268, 493, 1914, 2044, 1401, 3615, 4240, 4114, 2734, 2509, 978, 4527, 4942, 4857, 1140,
-    2075, 1147, 4269, 3360, 1507, 1542, 1537, 1528, 1518, 1511, 3742, 3751, 3756, 3721, 3725,
-    3732, 5708, 5695, 2081, 0, 4275, 6200, 6213, 6346, 6461, 5518, 5957, 5841, 5702, 5711, 5533,
-    6216, 6207, 6470, 5517, 5966,
+    2075, 1147, 4269, 3360, 1507, 1542, 1537, 1528, 1518, 1511, 3742, 3751, 3756, 3721, 3725, 3732,
+    5708, 5695, 2081, 0, 4275, 6200, 6213, 6346, 6461, 5518, 5957, 5841, 5702, 5711, 5533, 6216,
+    6207, 6470, 5517, 5966,
 ];
 
 const CM_TO_MM: f32 = 10.0;
@@ -161,7 +161,10 @@ pub fn import_with_report(source_dir: &Path) -> Result<(MorphableModel, ImportRe
             ));
         }
         if poly.uvs.is_empty() {
-            return Err(ModelError::format(obj_name, format!("polygon {pi} has no UVs")));
+            return Err(ModelError::format(
+                obj_name,
+                format!("polygon {pi} has no UVs"),
+            ));
         }
         for k in 1..poly.vertices.len() - 1 {
             triangles.push([poly.vertices[0], poly.vertices[k], poly.vertices[k + 1]]);
@@ -209,7 +212,12 @@ pub fn import_with_report(source_dir: &Path) -> Result<(MorphableModel, ImportRe
         .get("idx_to_landmark_verts")
         .and_then(|a| a.as_array())
         .and_then(|a| a.iter().map(|x| x.as_u64().map(|x| x as u32)).collect())
-        .ok_or_else(|| ModelError::format(INPUT_FILES[3], "`idx_to_landmark_verts` is not a list of indices"))?;
+        .ok_or_else(|| {
+            ModelError::format(
+                INPUT_FILES[3],
+                "`idx_to_landmark_verts` is not a list of indices",
+            )
+        })?;
     if lm != README_LANDMARKS {
         return Err(ModelError::format(
             INPUT_FILES[3],
@@ -244,7 +252,7 @@ pub fn import_with_report(source_dir: &Path) -> Result<(MorphableModel, ImportRe
         ..Default::default()
     };
 
-    let masks = masks(mean3, &lm);
+    let masks = regions::masks(mean3, FACE_VERTICES, NARROW_FACE_VERTICES, &lm, lm[30]);
     let (mean_albedo, albedo_basis, albedo_report) = albedo::build(&albedo::AlbedoInput {
         positions: mean3,
         triangles: &triangles,
@@ -290,12 +298,20 @@ pub fn import_with_report(source_dir: &Path) -> Result<(MorphableModel, ImportRe
 }
 
 /// `(shape_k − neutral)` for the kept vertices, in mm, mode-major.
-fn deltas(dir: &Path, rel: &str, neutral_cm: &[[f32; 3]], expect: usize) -> Result<Vec<f32>, ModelError> {
+fn deltas(
+    dir: &Path,
+    rel: &str,
+    neutral_cm: &[[f32; 3]],
+    expect: usize,
+) -> Result<Vec<f32>, ModelError> {
     let a = npy::parse(&read(dir, rel)?, rel)?;
     if a.shape != [expect, UPSTREAM_VERTICES, 3] {
         return Err(ModelError::format(
             rel,
-            format!("shape {:?}, expected [{expect}, {UPSTREAM_VERTICES}, 3]", a.shape),
+            format!(
+                "shape {:?}, expected [{expect}, {UPSTREAM_VERTICES}, 3]",
+                a.shape
+            ),
         ));
     }
     if let Some(i) = a.data.iter().position(|x| !x.is_finite()) {
@@ -313,51 +329,6 @@ fn deltas(dir: &Path, rel: &str, neutral_cm: &[[f32; 3]], expect: usize) -> Resu
     Ok(out)
 }
 
-fn dist(a: [f32; 3], b: [f32; 3]) -> f32 {
-    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
-}
-
-fn centroid(p: &[[f32; 3]], idx: impl Iterator<Item = u32>) -> [f32; 3] {
-    let mut s = [0.0f32; 3];
-    let mut k = 0.0;
-    for i in idx {
-        for a in 0..3 {
-            s[a] += p[i as usize][a];
-        }
-        k += 1.0;
-    }
-    s.map(|x| x / k)
-}
-
-/// Masks, in [`Mask::ALL`] order. Face and narrow face are upstream's ranges; eyes, mouth and
-/// nose tip are face vertices near landmark groups: within 0.75 × eye width of each eye's
-/// contour centroid (landmarks 36–41, 42–47), within 0.6 × mouth width of the mouth's
-/// centroid (48–67), within 12 mm of the nose tip (landmark 30).
-fn masks(p: &[[f32; 3]], lm: &[u32]) -> [Vec<u8>; 5] {
-    let n = p.len();
-    let lmp = |i: usize| p[lm[i] as usize];
-    let range = |end: usize| (0..n).map(|v| (v < end) as u8).collect::<Vec<_>>();
-    let near = |centres: &[([f32; 3], f32)]| {
-        (0..n)
-            .map(|v| (v < FACE_VERTICES && centres.iter().any(|(c, r)| dist(p[v], *c) <= *r)) as u8)
-            .collect::<Vec<_>>()
-    };
-    let eye_r = centroid(p, lm[36..42].iter().copied());
-    let eye_l = centroid(p, lm[42..48].iter().copied());
-    let eye_w = 0.5 * (dist(lmp(36), lmp(39)) + dist(lmp(42), lmp(45)));
-    let mouth = centroid(p, lm[48..68].iter().copied());
-    let mouth_w = dist(lmp(48), lmp(54));
-    let out = [
-        range(FACE_VERTICES),
-        range(NARROW_FACE_VERTICES),
-        near(&[(eye_r, 0.75 * eye_w), (eye_l, 0.75 * eye_w)]),
-        near(&[(mouth, 0.6 * mouth_w)]),
-        near(&[(lmp(30), 12.0)]),
-    ];
-    debug_assert_eq!(Mask::ALL.len(), out.len());
-    out
-}
-
 static DEFAULT: Mutex<Option<Arc<MorphableModel>>> = Mutex::new(None);
 
 /// The default model (ICT from [`default_source_dir`]), built once and cached: in memory for
@@ -370,7 +341,10 @@ pub fn load_default() -> Result<Arc<MorphableModel>, ModelError> {
         return Ok(m.clone());
     }
     let source = default_source_dir();
-    let path = cache_dir().join(format!("ict-face-light-{:016x}.safetensors", input_key(&source)?));
+    let path = cache_dir().join(format!(
+        "ict-face-light-{:016x}.safetensors",
+        input_key(&source)?
+    ));
     let model = match MorphableModel::load(&path) {
         Ok(m) => m,
         Err(_) => {
@@ -395,7 +369,9 @@ pub fn cache_dir() -> PathBuf {
         return PathBuf::from(p).join("facerecon-model-cache");
     }
     if let Ok(exe) = std::env::current_exe()
-        && let Some(t) = exe.ancestors().find(|a| a.file_name().is_some_and(|n| n == "target"))
+        && let Some(t) = exe
+            .ancestors()
+            .find(|a| a.file_name().is_some_and(|n| n == "target"))
     {
         return t.join("facerecon-model-cache");
     }

@@ -5,19 +5,24 @@
 //! * [`format`] — the model file (`safetensors`), loading with validation, saving.
 //! * [`ict`] — the ICT Face Model Light importer and [`ict::load_default`].
 //! * [`albedo`] — the Gaussian-process albedo model built for ICT.
-//! * [`obj`], [`npy`] — readers for the importers' inputs; [`symmetry`] — mirror maps.
+//! * [`bfm`] — the Basel Face Model 2009 + expressions importer ([`mat`]: MATLAB v5 reader).
+//! * [`obj`], [`npy`] — readers for the importers' inputs; [`symmetry`] — mirror maps;
+//!   [`regions`] — landmark-defined vertex masks.
 //! * [`mesh`] — a triangle mesh with optional per-vertex attributes, and its export.
 //! * [`scene`] — the scene ℋ of DESIGN §4: pose, camera, spherical-harmonics lighting, normals.
 
 pub mod albedo;
+pub mod bfm;
 pub mod coeffs;
 pub mod error;
 pub mod format;
 pub mod ict;
+pub mod mat;
 pub mod mesh;
 pub mod morphable;
 pub mod npy;
 pub mod obj;
+pub mod regions;
 pub mod scene;
 pub mod symmetry;
 

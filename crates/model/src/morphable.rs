@@ -238,7 +238,8 @@ impl MorphableModel {
     pub fn vertex_uvs(&self) -> &[[f32; 2]] {
         &self.vertex_uvs
     }
-    /// 68 landmark vertex indices (iBUG order), all inside the face area.
+    /// 68 landmark vertex indices (iBUG order), all inside the face area; empty for a model
+    /// imported without landmark annotations (BFM without a landmark file).
     pub fn landmarks(&self) -> &[u32] {
         &self.parts.landmarks
     }
@@ -334,16 +335,83 @@ impl MorphableModel {
         Ok(())
     }
 
+    /// Shapes of many faces at once (`identity[b]`, `expression[b]` for face b). Each basis
+    /// mode is streamed from memory once per block of vertices for the whole batch instead
+    /// of once per face, so the per-face cost drops from memory-bound towards compute-bound
+    /// (see docs/bench/model.md).
+    pub fn shape_batch(
+        &self,
+        identity: &[&[f32]],
+        expression: &[&[f32]],
+        extent: Extent,
+    ) -> Result<Vec<Vec<[f32; 3]>>, ModelError> {
+        if identity.len() != expression.len() {
+            return Err(ModelError::Invalid(format!(
+                "batch of {} identity and {} expression vectors",
+                identity.len(),
+                expression.len()
+            )));
+        }
+        for (id, ex) in identity.iter().zip(expression) {
+            self.check("identity", self.meta.identity, id)?;
+            self.check("expression", self.meta.expression, ex)?;
+        }
+        let n = self.extent_vertices(extent);
+        let n3 = n * 3;
+        let stride = self.meta.vertex_count * 3;
+        let mut outs: Vec<Vec<[f32; 3]>> = identity
+            .iter()
+            .map(|_| self.mean_shape()[..n].to_vec())
+            .collect();
+        /// Floats per block: 16 KB of one mode, reused from L1 for every face.
+        const BLOCK: usize = 4096;
+        for start in (0..n3).step_by(BLOCK) {
+            let end = (start + BLOCK).min(n3);
+            for (basis, weights) in [
+                (&self.parts.identity_basis, identity),
+                (&self.parts.expression_basis, expression),
+            ] {
+                let modes = weights.first().map_or(0, |w| w.len());
+                for k in 0..modes {
+                    let m = &basis[k * stride + start..k * stride + end];
+                    for (out, w) in outs.iter_mut().zip(weights.iter()) {
+                        let wk = w[k];
+                        if wk != 0.0 {
+                            let acc = &mut out.as_flattened_mut()[start..end];
+                            for (a, b) in acc.iter_mut().zip(m) {
+                                *a += wk * *b;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        Ok(outs)
+    }
+
     /// Albedo `ā + Ut·wt` for an extent, linear RGB (not clamped: the range prior of
     /// Eq. 2.39 is the fitter's job). Outside the face area the colour is the region's constant.
     pub fn albedo(&self, coeffs: &[f32], extent: Extent) -> Result<Vec<[f32; 3]>, ModelError> {
+        let mut out = Vec::new();
+        self.albedo_into(coeffs, extent, &mut out)?;
+        Ok(out)
+    }
+
+    /// [`albedo`](Self::albedo) into a reused buffer.
+    pub fn albedo_into(
+        &self,
+        coeffs: &[f32],
+        extent: Extent,
+        out: &mut Vec<[f32; 3]>,
+    ) -> Result<(), ModelError> {
         self.check("albedo", self.meta.albedo, coeffs)?;
         let n = self.extent_vertices(extent);
-        let mut out = self.mean_albedo()[..n].to_vec();
+        out.clear();
+        out.extend_from_slice(&self.mean_albedo()[..n]);
         let nf = self.meta.face_vertex_count;
-        let acc = &mut as_flat_mut(&mut out)[..nf * 3];
+        let acc = &mut as_flat_mut(out)[..nf * 3];
         accumulate(acc, &self.parts.albedo_basis, nf * 3, coeffs);
-        Ok(out)
+        Ok(())
     }
 
     /// The face-area mesh of a coefficient set in model space (mm): positions, triangles,
@@ -358,32 +426,75 @@ impl MorphableModel {
     }
 
     fn instance_extent(&self, c: &Coefficients, extent: Extent) -> Result<Mesh, ModelError> {
-        let positions = self.shape(&c.identity, &c.expression, extent)?;
-        let colors = self.albedo(&c.albedo, extent)?;
-        let n = positions.len();
-        Ok(Mesh {
-            positions,
-            triangles: self.extent_triangles(extent).to_vec(),
-            normals: None,
-            colors: Some(colors),
-            uvs: Some(self.vertex_uvs[..n].to_vec()),
-        })
+        let mut mesh = Mesh::default();
+        self.instance_into(c, extent, &mut mesh)?;
+        Ok(mesh)
+    }
+
+    /// Like [`instance`](Self::instance) into a reused mesh: positions and colours are
+    /// overwritten; triangles and UVs are copied only when they differ from what the mesh
+    /// already holds (a compare is cheaper than a copy into fresh memory). Normals are cleared.
+    pub fn instance_into(
+        &self,
+        c: &Coefficients,
+        extent: Extent,
+        mesh: &mut Mesh,
+    ) -> Result<(), ModelError> {
+        self.shape_into(&c.identity, &c.expression, extent, &mut mesh.positions)?;
+        let colors = mesh.colors.get_or_insert_with(Vec::new);
+        self.albedo_into(&c.albedo, extent, colors)?;
+        let n = mesh.positions.len();
+        let tris = self.extent_triangles(extent);
+        if mesh.triangles != tris {
+            mesh.triangles.clear();
+            mesh.triangles.extend_from_slice(tris);
+        }
+        let uvs = mesh.uvs.get_or_insert_with(Vec::new);
+        if uvs[..] != self.vertex_uvs[..n] {
+            uvs.clear();
+            uvs.extend_from_slice(&self.vertex_uvs[..n]);
+        }
+        mesh.normals = None;
+        Ok(())
     }
 }
 
 /// `acc += Σ_k w_k · basis[k]`, each mode a contiguous run of `stride` floats of which the
-/// first `acc.len()` are used. Zero weights are skipped (sparse expressions are common).
+/// first `acc.len()` are used. Zero weights are skipped (sparse expressions are common), and
+/// the remaining modes are applied four at a time so that the accumulator is read and
+/// written once per four streamed modes (the bases are the memory traffic that matters).
 fn accumulate(acc: &mut [f32], basis: &[f32], stride: usize, w: &[f32]) {
     let n = acc.len();
+    let mode = |k: usize| &basis[k * stride..k * stride + n];
+    let mut group = [(0usize, 0.0f32); 4];
+    let mut len = 0;
+    let flush = |acc: &mut [f32], group: &[(usize, f32)]| match *group {
+        [(a, wa), (b, wb), (c, wc), (d, wd)] => {
+            let (ma, mb, mc, md) = (mode(a), mode(b), mode(c), mode(d));
+            for i in 0..n {
+                acc[i] += wa * ma[i] + wb * mb[i] + wc * mc[i] + wd * md[i];
+            }
+        }
+        _ => {
+            for &(k, wk) in group {
+                for (x, b) in acc.iter_mut().zip(mode(k)) {
+                    *x += wk * *b;
+                }
+            }
+        }
+    };
     for (k, &wk) in w.iter().enumerate() {
         if wk == 0.0 {
             continue;
         }
-        let mode = &basis[k * stride..k * stride + n];
-        for (a, b) in acc.iter_mut().zip(mode) {
-            *a += wk * *b;
+        group[len] = (k, wk);
+        len += 1;
+        if len == 4 {
+            flush(acc, &group);
+            len = 0;
         }
     }
+    flush(acc, &group[..len]);
 }
 
 fn vertex_uvs(parts: &ModelParts) -> Vec<[f32; 2]> {

@@ -26,20 +26,29 @@ pub fn parse(bytes: &[u8], file: &str) -> Result<Array, ModelError> {
             let n = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize;
             (n, 12)
         }
-        v => return Err(err(format!("format version {v}.{} is not supported", bytes[7]))),
+        v => {
+            return Err(err(format!(
+                "format version {v}.{} is not supported",
+                bytes[7]
+            )));
+        }
     };
     let end = start
         .checked_add(header_len)
         .filter(|&e| e <= bytes.len())
-        .ok_or_else(|| err(format!("header of {header_len} bytes runs past the end of the file")))?;
-    let header = std::str::from_utf8(&bytes[start..end])
-        .map_err(|_| err("header is not text".into()))?;
+        .ok_or_else(|| {
+            err(format!(
+                "header of {header_len} bytes runs past the end of the file"
+            ))
+        })?;
+    let header =
+        std::str::from_utf8(&bytes[start..end]).map_err(|_| err("header is not text".into()))?;
     let descr = dict_value(header, "descr").ok_or_else(|| err("header has no 'descr'".into()))?;
     if descr.trim_matches(|c| c == '\'' || c == '"') != "<f4" {
         return Err(err(format!("dtype {descr} is not supported (only '<f4')")));
     }
-    let fortran =
-        dict_value(header, "fortran_order").ok_or_else(|| err("header has no 'fortran_order'".into()))?;
+    let fortran = dict_value(header, "fortran_order")
+        .ok_or_else(|| err("header has no 'fortran_order'".into()))?;
     if fortran != "False" {
         return Err(err("Fortran-order arrays are not supported".into()));
     }
@@ -109,7 +118,7 @@ mod tests {
     fn npy(version: u8, header: &str, data: &[f32]) -> Vec<u8> {
         let mut h = header.to_string();
         let pre = if version == 1 { 10 } else { 12 };
-        while (pre + h.len() + 1) % 64 != 0 {
+        while !(pre + h.len() + 1).is_multiple_of(64) {
             h.push(' ');
         }
         h.push('\n');
@@ -137,7 +146,15 @@ mod tests {
             assert_eq!(a.shape, vec![2, 3]);
             assert_eq!(a.data, d);
         }
-        let a = parse(&npy(1, "{'descr': '<f4', 'fortran_order': False, 'shape': (4,), }", &d[..4]), "b").unwrap();
+        let a = parse(
+            &npy(
+                1,
+                "{'descr': '<f4', 'fortran_order': False, 'shape': (4,), }",
+                &d[..4],
+            ),
+            "b",
+        )
+        .unwrap();
         assert_eq!(a.shape, vec![4]);
     }
 
@@ -147,13 +164,56 @@ mod tests {
         let d = [0.0f32; 6];
         let cases: Vec<(Vec<u8>, &str)> = vec![
             (b"hello world".to_vec(), "magic"),
-            (npy(1, "{'descr': '<f8', 'fortran_order': False, 'shape': (2, 3), }", &d), "dtype"),
-            (npy(1, "{'descr': '<f4', 'fortran_order': True, 'shape': (2, 3), }", &d), "Fortran"),
+            (
+                npy(
+                    1,
+                    "{'descr': '<f8', 'fortran_order': False, 'shape': (2, 3), }",
+                    &d,
+                ),
+                "dtype",
+            ),
+            (
+                npy(
+                    1,
+                    "{'descr': '<f4', 'fortran_order': True, 'shape': (2, 3), }",
+                    &d,
+                ),
+                "Fortran",
+            ),
             (npy(1, ok, &d[..5]), "needs 24 bytes"),
-            (npy(1, "{'descr': '<f4', 'fortran_order': False, 'shape': (99999999999, 99999999999, 9999999), }", &d), "overflows"),
-            (npy(1, "{'descr': '<f4', 'fortran_order': False, 'shape': (1000000000, 3), }", &d), "needs"),
-            ({ let mut b = npy(1, ok, &d); b[8] = 0xff; b[9] = 0xff; b }, "runs past"),
-            ({ let mut b = npy(1, ok, &d); b[6] = 9; b }, "version"),
+            (
+                npy(
+                    1,
+                    "{'descr': '<f4', 'fortran_order': False, 'shape': (99999999999, 99999999999, 9999999), }",
+                    &d,
+                ),
+                "overflows",
+            ),
+            (
+                npy(
+                    1,
+                    "{'descr': '<f4', 'fortran_order': False, 'shape': (1000000000, 3), }",
+                    &d,
+                ),
+                "needs",
+            ),
+            (
+                {
+                    let mut b = npy(1, ok, &d);
+                    b[8] = 0xff;
+                    b[9] = 0xff;
+                    b
+                },
+                "runs past",
+            ),
+            (
+                {
+                    let mut b = npy(1, ok, &d);
+                    b[6] = 9;
+                    b
+                },
+                "version",
+            ),
         ];
         for (bytes, msg) in cases {
             let e = parse(&bytes, "x.npy").unwrap_err().to_string();

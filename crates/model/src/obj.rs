@@ -46,7 +46,8 @@ pub fn parse(text: &str, file: &str) -> Result<Obj, ModelError> {
                 obj.positions.push(p);
             }
             "vt" => {
-                let p = floats::<2>(&mut it).map_err(|e| err(format!("texture coordinate: {e}")))?;
+                let p =
+                    floats::<2>(&mut it).map_err(|e| err(format!("texture coordinate: {e}")))?;
                 obj.uvs.push(p);
             }
             "f" => {
@@ -81,12 +82,16 @@ pub fn parse(text: &str, file: &str) -> Result<Obj, ModelError> {
                     )));
                 }
                 if !poly.uvs.is_empty() && poly.uvs.len() != poly.vertices.len() {
-                    return Err(err("face mixes corners with and without texture coordinates".into()));
+                    return Err(err(
+                        "face mixes corners with and without texture coordinates".into(),
+                    ));
                 }
                 obj.polygons.push(poly);
             }
             "usemtl" => {
-                let name = it.next().ok_or_else(|| err("usemtl without a name".into()))?;
+                let name = it
+                    .next()
+                    .ok_or_else(|| err("usemtl without a name".into()))?;
                 let id = match obj.materials.iter().position(|m| m == name) {
                     Some(id) => id,
                     None => {
@@ -119,7 +124,9 @@ fn floats<const K: usize>(it: &mut std::str::SplitAsciiWhitespace) -> Result<[f3
 
 /// Resolves a 1-based (or negative, relative) OBJ index against `count` items defined so far.
 fn index(s: &str, count: usize) -> Result<u32, String> {
-    let i: i64 = s.parse().map_err(|_| format!("index {s:?} is not an integer"))?;
+    let i: i64 = s
+        .parse()
+        .map_err(|_| format!("index {s:?} is not an integer"))?;
     let resolved = if i > 0 {
         i - 1
     } else if i < 0 {
@@ -128,7 +135,9 @@ fn index(s: &str, count: usize) -> Result<u32, String> {
         return Err("index 0 is invalid (OBJ indices start at 1)".into());
     };
     if resolved < 0 || resolved >= count as i64 {
-        return Err(format!("index {i} refers to an undefined element ({count} defined)"));
+        return Err(format!(
+            "index {i} refers to an undefined element ({count} defined)"
+        ));
     }
     Ok(resolved as u32)
 }
@@ -160,14 +169,20 @@ mod tests {
             ("v 0 0 0\nf 1 2 3\n", 2, "undefined"),
             ("v 0 0 0\nv 0 0 0\nv 0 0 0\nf 1 2 0\n", 4, "index 0"),
             ("v 0 0 0\nv 0 0 0\nf 1 2\n", 3, "at least 3"),
-            ("v 0 0 0\nv 0 0 0\nv 0 0 0\nvt 0 0\nf 1/1 2 3/1\n", 5, "mixes"),
+            (
+                "v 0 0 0\nv 0 0 0\nv 0 0 0\nvt 0 0\nf 1/1 2 3/1\n",
+                5,
+                "mixes",
+            ),
             ("\nusemtl\n", 2, "without a name"),
             ("v 1 nan 0\n", 1, "not finite"),
         ];
         for (text, line, msg) in cases {
             let e = parse(text, "bad.obj").unwrap_err();
             match &e {
-                ModelError::Parse { line: l, problem, .. } => {
+                ModelError::Parse {
+                    line: l, problem, ..
+                } => {
                     assert_eq!(*l, line, "{text:?}: {e}");
                     assert!(problem.contains(msg), "{text:?}: {e}");
                 }

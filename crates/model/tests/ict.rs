@@ -51,19 +51,35 @@ fn counts_and_metadata() {
     let tris = |k: usize| corners[..k].iter().map(|c| c - 2).sum::<usize>();
     assert_eq!(m.face_triangle_count(), tris(9_230));
     assert_eq!(m.triangles().len(), tris(24_692));
-    assert!(m.extent_triangles(Extent::Face).iter().flatten().all(|&v| v < 9_409));
+    assert!(
+        m.extent_triangles(Extent::Face)
+            .iter()
+            .flatten()
+            .all(|&v| v < 9_409)
+    );
     let (uvs, uv_tris) = m.uvs();
     assert_eq!(uv_tris.len(), m.triangles().len());
     assert!(uvs.len() > m.vertex_count(), "UVs are split at seams");
     // UDIM-style tiles along u; the face area lies in the first tile.
-    assert!(uvs.iter().all(|t| (0.0..7.0).contains(&t[0]) && (0.0..=1.0).contains(&t[1])));
+    assert!(
+        uvs.iter()
+            .all(|t| (0.0..7.0).contains(&t[0]) && (0.0..=1.0).contains(&t[1]))
+    );
     let face_uv = &uv_tris[..m.face_triangle_count()];
-    assert!(face_uv.iter().flatten().all(|&i| uvs[i as usize].iter().all(|x| (0.0..=1.0).contains(x))));
+    assert!(
+        face_uv
+            .iter()
+            .flatten()
+            .all(|&i| uvs[i as usize].iter().all(|x| (0.0..=1.0).contains(x)))
+    );
     // Regions: per-vertex ids follow upstream's ranges.
     assert_eq!(m.region_ids()[9_408], 0);
     assert_eq!(m.region_ids()[9_409], 1);
     assert_eq!(meta.region_names[m.region_ids()[17_039] as usize], "teeth");
-    assert_eq!(meta.region_names[m.region_ids()[24_590] as usize], "iris_right");
+    assert_eq!(
+        meta.region_names[m.region_ids()[24_590] as usize],
+        "iris_right"
+    );
     let face: usize = m.mask(Mask::Face).iter().map(|&x| x as usize).sum();
     assert_eq!(face, 9_409);
     let narrow: usize = m.mask(Mask::NarrowFace).iter().map(|&x| x as usize).sum();
@@ -79,7 +95,11 @@ fn identity000_obj_equals_neutral_plus_first_mode() {
     let ex = vec![0.0; 53];
     let full = m.shape(&id, &ex, Extent::Full).unwrap();
     // cm text → f32 → ×10 on both sides, and a difference of two shapes: a few ULPs of mm.
-    assert!(max_err(&full, &want[..full.len()]) < 2e-4, "{}", max_err(&full, &want));
+    assert!(
+        max_err(&full, &want[..full.len()]) < 2e-4,
+        "{}",
+        max_err(&full, &want)
+    );
     let face = m.shape(&id, &ex, Extent::Face).unwrap();
     assert_eq!(face.len(), 9_409);
     assert_eq!(&face[..], &full[..9_409]);
@@ -91,7 +111,12 @@ fn identity000_obj_equals_neutral_plus_first_mode() {
 fn jaw_open_obj_equals_neutral_plus_blendshape() {
     let m = ict::load_default().unwrap();
     let want = upstream_obj("jawOpen.obj");
-    let j = m.meta().expression_names.iter().position(|n| n == "jawOpen").unwrap();
+    let j = m
+        .meta()
+        .expression_names
+        .iter()
+        .position(|n| n == "jawOpen")
+        .unwrap();
     let mut ex = vec![0.0; 53];
     ex[j] = 1.0;
     let got = m.shape(&vec![0.0; 100], &ex, Extent::Full).unwrap();
@@ -99,7 +124,12 @@ fn jaw_open_obj_equals_neutral_plus_blendshape() {
     // Half-open is halfway (linearity).
     ex[j] = 0.5;
     let half = m.shape(&vec![0.0; 100], &ex, Extent::Full).unwrap();
-    let mid: Vec<[f32; 3]> = m.mean_shape().iter().zip(&got).map(|(a, b)| [0, 1, 2].map(|c| 0.5 * (a[c] + b[c]))).collect();
+    let mid: Vec<[f32; 3]> = m
+        .mean_shape()
+        .iter()
+        .zip(&got)
+        .map(|(a, b)| [0, 1, 2].map(|c| 0.5 * (a[c] + b[c])))
+        .collect();
     assert!(max_err(&half, &mid) < 1e-3);
     // The chin (landmark 8) moves down by centimetres.
     let chin = m.landmarks()[8] as usize;
@@ -130,7 +160,8 @@ fn symmetry_map_mirrors_the_face() {
     let mut worst = 0.0f32;
     for v in 0..m.face_vertex_count() {
         let q = p[s[v] as usize];
-        let d = ((q[0] + p[v][0]).powi(2) + (q[1] - p[v][1]).powi(2) + (q[2] - p[v][2]).powi(2)).sqrt();
+        let d =
+            ((q[0] + p[v][0]).powi(2) + (q[1] - p[v][1]).powi(2) + (q[2] - p[v][2]).powi(2)).sqrt();
         worst = worst.max(d);
     }
     assert!(worst < 3.0, "max mirror distance {worst} mm");
@@ -166,4 +197,176 @@ fn instance_albedo_and_file_round_trip() {
     let back = MorphableModel::load(&path).unwrap();
     assert!(back == *m, "file round trip");
     std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn albedo_model_is_plausible_symmetric_and_orthogonal() {
+    let m = ict::load_default().unwrap();
+    let nf = m.face_vertex_count();
+    let mean = m.mean_albedo();
+    assert!(mean.iter().flatten().all(|x| (0.0..=1.0).contains(x)));
+    // Lips (landmarks 62, 66: mid upper and lower inner lip) are redder than the forehead.
+    let redness = |v: usize| mean[v][0] / mean[v][1];
+    let lips = 0.5 * (redness(m.landmarks()[62] as usize) + redness(m.landmarks()[66] as usize));
+    let forehead = redness(m.landmarks()[27] as usize);
+    assert!(lips > 1.4 * forehead, "lips {lips} forehead {forehead}");
+    // Modes: mirror-symmetric, mutually orthogonal, ordered by decreasing variance.
+    let s = m.symmetry();
+    let k = m.layout().albedo;
+    let mut norms = Vec::new();
+    for a in 0..k {
+        let ma = m.albedo_mode(a);
+        let asym = (0..nf)
+            .map(|v| {
+                (0..3)
+                    .map(|c| (ma[v][c] - ma[s[v] as usize][c]).abs())
+                    .fold(0.0, f32::max)
+            })
+            .fold(0.0, f32::max);
+        let peak = ma.iter().flatten().fold(0.0f32, |x, y| x.max(y.abs()));
+        assert!(
+            asym < 0.02 * peak + 1e-6,
+            "mode {a}: asymmetry {asym} vs peak {peak}"
+        );
+        norms.push(
+            ma.iter()
+                .flatten()
+                .map(|x| (*x as f64).powi(2))
+                .sum::<f64>(),
+        );
+    }
+    for a in 0..k {
+        for b in (a + 1)..k.min(a + 8) {
+            let dot: f64 = m
+                .albedo_mode(a)
+                .iter()
+                .flatten()
+                .zip(m.albedo_mode(b).iter().flatten())
+                .map(|(x, y)| *x as f64 * *y as f64)
+                .sum();
+            assert!(
+                dot.abs() < 1e-3 * (norms[a] * norms[b]).sqrt(),
+                "modes {a},{b}"
+            );
+        }
+    }
+    assert!(norms.windows(2).all(|w| w[1] <= w[0] * 1.0001));
+    // A +2σ sample of the first mode changes the colour smoothly and stays in a sane range.
+    let mut c = vec![0.0; k];
+    c[0] = 2.0;
+    let a = m.albedo(&c, Extent::Face).unwrap();
+    assert!(a.iter().flatten().all(|x| (-0.1..1.1).contains(x)));
+}
+
+#[test]
+fn shape_and_albedo_with_many_modes_match_a_naive_sum() {
+    let m = ict::load_default().unwrap();
+    let l = m.layout();
+    // Dense and gappy weights (exercise the grouped and remainder paths).
+    let id: Vec<f32> = (0..l.identity)
+        .map(|k| {
+            if k % 9 == 4 {
+                0.0
+            } else {
+                ((k * 37 % 17) as f32 - 8.0) * 0.2
+            }
+        })
+        .collect();
+    let ex: Vec<f32> = (0..l.expression)
+        .map(|k| {
+            if k % 3 == 0 {
+                0.0
+            } else {
+                (k * 13 % 10) as f32 * 0.1
+            }
+        })
+        .collect();
+    let tex: Vec<f32> = (0..l.albedo)
+        .map(|k| ((k * 7 % 11) as f32 - 5.0) * 0.3)
+        .collect();
+    let got = m.shape(&id, &ex, Extent::Face).unwrap();
+    let alb = m.albedo(&tex, Extent::Full).unwrap();
+    let nf = m.face_vertex_count();
+    for v in (0..nf).step_by(97) {
+        for c in 0..3 {
+            let mut s = m.mean_shape()[v][c] as f64;
+            for (k, w) in id.iter().enumerate() {
+                s += *w as f64 * m.identity_mode(k)[v][c] as f64;
+            }
+            for (k, w) in ex.iter().enumerate() {
+                s += *w as f64 * m.expression_mode(k)[v][c] as f64;
+            }
+            assert!((got[v][c] as f64 - s).abs() < 1e-3, "vertex {v}");
+            let mut a = m.mean_albedo()[v][c] as f64;
+            for (k, w) in tex.iter().enumerate() {
+                a += *w as f64 * m.albedo_mode(k)[v][c] as f64;
+            }
+            assert!((alb[v][c] as f64 - a).abs() < 1e-5, "albedo vertex {v}");
+        }
+    }
+    // Outside the face area the albedo is the region's constant.
+    assert_eq!(alb[nf + 10], m.mean_albedo()[nf + 10]);
+}
+
+#[test]
+fn batched_shapes_equal_single_shapes() {
+    let m = ict::load_default().unwrap();
+    let l = m.layout();
+    let ids: Vec<Vec<f32>> = (0..5)
+        .map(|b| {
+            (0..l.identity)
+                .map(|k| ((k + b) % 5) as f32 * 0.3 - 0.6)
+                .collect()
+        })
+        .collect();
+    let exs: Vec<Vec<f32>> = (0..5)
+        .map(|b| {
+            (0..l.expression)
+                .map(|k| if (k + b) % 4 == 0 { 0.8 } else { 0.0 })
+                .collect()
+        })
+        .collect();
+    let idr: Vec<&[f32]> = ids.iter().map(|v| v.as_slice()).collect();
+    let exr: Vec<&[f32]> = exs.iter().map(|v| v.as_slice()).collect();
+    for extent in [Extent::Face, Extent::Full] {
+        let batch = m.shape_batch(&idr, &exr, extent).unwrap();
+        for b in 0..5 {
+            let one = m.shape(&ids[b], &exs[b], extent).unwrap();
+            let err = one
+                .iter()
+                .flatten()
+                .zip(batch[b].iter().flatten())
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0, f32::max);
+            assert!(err < 1e-3, "face {b}: {err} mm (summation order differs)");
+        }
+    }
+    let bad = vec![0.0f32; 3];
+    assert!(m.shape_batch(&[&bad], &[&exs[0]], Extent::Face).is_err());
+    assert!(m.shape_batch(&[&ids[0]], &[], Extent::Face).is_err());
+}
+
+#[test]
+fn instance_into_reuses_a_mesh_and_equals_instance() {
+    let m = ict::load_default().unwrap();
+    let mut c = Coefficients::neutral(m.layout(), 500.0);
+    let mut mesh = facerecon_model::Mesh::default();
+    for step in 0..3 {
+        c.identity[step] = 0.5;
+        c.expression[10 + step] = 0.3;
+        c.albedo[step] = 1.0;
+        let extent = if step == 1 {
+            Extent::Full
+        } else {
+            Extent::Face
+        };
+        m.instance_into(&c, extent, &mut mesh).unwrap();
+        let fresh = if step == 1 {
+            m.instance_full(&c)
+        } else {
+            m.instance(&c)
+        }
+        .unwrap();
+        assert!(mesh == fresh, "step {step}");
+    }
 }
