@@ -31,13 +31,15 @@ const MAX_BATCH_BYTES: u64 = 256 << 20;
 /// Cap on the side of an atlas layer, pixels.
 const MAX_ATLAS_SIDE: u32 = 4096;
 
-/// How the jobs of one submission share the render targets.
+/// How the jobs of one submission share the render targets (see decision 0200 for the
+/// measurements behind the default, [`Batching::Layers`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Batching {
     /// One array layer per job, one render pass per job.
     Layers,
     /// Many jobs as tiles of one layer, one render pass per layer (viewport + scissor per
-    /// job). Faster on lavapipe; ids may differ from single renders at exact edge ties.
+    /// job). Fewer passes; ids may differ from single renders at exact edge ties and
+    /// barycentrics of grazing slivers by ~5e-4.
     Atlas,
 }
 
@@ -220,9 +222,10 @@ fn select_adapter(adapters: Vec<wgpu::Adapter>) -> Result<wgpu::Adapter, RenderE
 }
 
 impl Renderer {
-    /// Opens a Vulkan device (see [`select_adapter`] rules) with [`Batching::Atlas`].
+    /// Opens a Vulkan device (see [`select_adapter`] rules) with [`Batching::Layers`]: a
+    /// face renders bit-identically whatever it is batched with (decision 0200).
     pub fn new() -> Result<Self, RenderError> {
-        Self::with_batching(Batching::Atlas)
+        Self::with_batching(Batching::Layers)
     }
 
     pub fn with_batching(batching: Batching) -> Result<Self, RenderError> {
@@ -514,22 +517,20 @@ impl Renderer {
         let scope_oom = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let scope_val = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
 
-        // Grow resources if needed (the bind group follows them).
+        // Grow resources if needed (the bind group follows them). Targets are also
+        // recreated when much larger than needed: every render pass clears a whole layer.
         let (need_w, need_h) = (cols * tile_w, rows * tile_h);
-        let grow_targets = self
-            .targets
-            .as_ref()
-            .is_none_or(|t| t.width < need_w || t.height < need_h || t.layers < layers);
+        let grow_targets = self.targets.as_ref().is_none_or(|t| {
+            let too_small = t.width < need_w || t.height < need_h || t.layers < layers;
+            let too_large = t.width as u64 * t.height as u64 > 2 * need_w as u64 * need_h as u64;
+            too_small || too_large
+        });
         if grow_targets {
-            let (w, h, l) = match &self.targets {
-                Some(t) => (
-                    t.width.max(need_w),
-                    t.height.max(need_h),
-                    t.layers.max(layers),
-                ),
-                None => (need_w, need_h, layers),
+            let layers = match &self.targets {
+                Some(t) if t.width == need_w && t.height == need_h => t.layers.max(layers),
+                _ => layers,
             };
-            self.targets = Some(Targets::new(&self.device, w, h, l));
+            self.targets = Some(Targets::new(&self.device, need_w, need_h, layers));
         }
         let mut grew = grow_targets;
         grew |= self
