@@ -98,7 +98,9 @@ fn model_sheet(model: &MorphableModel) -> Result<RgbImage, Box<dyn std::error::E
         let lm: Vec<[f32; 3]> = model.landmarks().iter().map(|&i| shape[i as usize]).collect();
         let mut camera = Camera::default();
         // Mean-face-sized crop for every tile, so that identity modes show their size too.
-        c.translation = place_face(&lm, c.rotation, &camera, TILE, TILE, [TILE as f32 / 2.0, TILE as f32 * 0.55], 150.0);
+        // Turned heads: shift the face towards where it looks, so the back of the head fits.
+        let cx = TILE as f32 * (0.5 + 0.15 * euler.yaw_deg / 90.0);
+        c.translation = place_face(&lm, c.rotation, &camera, TILE, TILE, [cx, TILE as f32 * 0.55], 150.0);
         camera.near = (-c.translation[2] - 400.0).max(1.0);
         camera.far = -c.translation[2] + 400.0;
         let (frame, _) = g.render(&c, &colors, camera, TILE, TILE)?;
