@@ -41,12 +41,10 @@ fn key_light() -> [[f32; 3]; 25] {
     let (a, beta) = (0.9f32, 0.55f32);
     let d = glam::Vec3::new(-0.35, 0.45, 0.82).normalize();
     let y1 = 0.488_602_5f32;
-    for c in 0..3 {
-        w[0][c] *= a;
-        w[1][c] = a * beta * d.y / y1;
-        w[2][c] = a * beta * d.z / y1;
-        w[3][c] = a * beta * d.x / y1;
-    }
+    w[0] = w[0].map(|x| x * a);
+    w[1] = [a * beta * d.y / y1; 3];
+    w[2] = [a * beta * d.z / y1; 3];
+    w[3] = [a * beta * d.x / y1; 3];
     w
 }
 
@@ -100,7 +98,9 @@ fn model_sheet(model: &MorphableModel) -> Result<RgbImage, Box<dyn std::error::E
         let lm: Vec<[f32; 3]> = model.landmarks().iter().map(|&i| shape[i as usize]).collect();
         let mut camera = Camera::default();
         // Mean-face-sized crop for every tile, so that identity modes show their size too.
-        c.translation = place_face(&lm, c.rotation, &camera, TILE, TILE, [TILE as f32 / 2.0, TILE as f32 * 0.55], 150.0);
+        // Turned heads: shift the face towards where it looks, so the back of the head fits.
+        let cx = TILE as f32 * (0.5 + 0.15 * euler.yaw_deg / 90.0);
+        c.translation = place_face(&lm, c.rotation, &camera, TILE, TILE, [cx, TILE as f32 * 0.55], 150.0);
         camera.near = (-c.translation[2] - 400.0).max(1.0);
         camera.far = -c.translation[2] + 400.0;
         let (frame, _) = g.render(&c, &colors, camera, TILE, TILE)?;

@@ -38,10 +38,10 @@ pub enum SynthError {
     Model(Box<dyn std::error::Error + Send + Sync>),
     #[error("rendering failed: {0}")]
     Render(#[from] facerecon_raster::RenderError),
-    #[error("{path}: {source}")]
-    Io { path: std::path::PathBuf, source: std::io::Error },
-    #[error("{path}: {source}")]
-    Image { path: std::path::PathBuf, source: image::ImageError },
+    #[error("{}", path.display())]
+    Io { path: std::path::PathBuf, #[source] source: std::io::Error },
+    #[error("{}", path.display())]
+    Image { path: std::path::PathBuf, #[source] source: image::ImageError },
 }
 
 impl SynthError {

@@ -82,8 +82,8 @@ mod tests {
         let mut rng = Rng::new(11);
         for _ in 0..100 {
             let w = random_light(&mut rng);
-            for c in 0..3 {
-                let mean = w[0][c] as f64 * Y00;
+            for w0 in w[0] {
+                let mean = w0 as f64 * Y00;
                 assert!((0.75 * 0.9..=1.25 * 1.1).contains(&mean), "{mean}");
             }
         }

@@ -54,7 +54,7 @@ impl LitFace {
             *nrm = glam::Vec3::from(*nrm).normalize_or_zero().to_array();
         }
 
-        self.albedo = model.albedo(&c.albedo, Extent::Face).map_err(SynthError::model)?;
+        model.albedo_into(&c.albedo, Extent::Face, &mut self.albedo).map_err(SynthError::model)?;
         self.colors.clear();
         self.colors.extend(self.albedo.iter().zip(&self.normals).map(|(a, nrm)| {
             let phi = sh_basis(*nrm);

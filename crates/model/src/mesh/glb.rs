@@ -104,10 +104,10 @@ pub fn write_glb<W: Write>(mesh: &Mesh, mut out: W) -> Result<(), ExportError> {
     });
     let mut json_bytes = serde_json::to_vec(&doc).expect("a JSON value always serialises");
     // Chunks are padded to 4 bytes: JSON with spaces, BIN with zeros (glTF 2.0 §4.4.3).
-    while json_bytes.len() % 4 != 0 {
+    while !json_bytes.len().is_multiple_of(4) {
         json_bytes.push(b' ');
     }
-    while bin.len() % 4 != 0 {
+    while !bin.len().is_multiple_of(4) {
         bin.push(0);
     }
     let total = 12 + 8 + json_bytes.len() + 8 + bin.len();
