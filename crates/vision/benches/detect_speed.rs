@@ -48,10 +48,10 @@ fn bench(c: &mut Criterion) {
     cpu_per_call("opencv params", || {
         opencv_like.detect_faces(&img);
     });
-    c.bench_function("detect 640x480 default (frontal+profile×2)", |b| b.iter(|| det.detect_faces(&img)));
+    c.bench_function("detect 640x480 default (haar frontal + lbp frontal + profile×2)", |b| b.iter(|| det.detect_faces(&img)));
     let mut opencv = det.clone();
     opencv.set_params(DetectorParams::opencv()).unwrap();
-    c.bench_function("detect 640x480 opencv params (frontal+profile×2)", |b| b.iter(|| opencv.detect_faces(&img)));
+    c.bench_function("detect 640x480 opencv params (same cascades)", |b| b.iter(|| opencv.detect_faces(&img)));
     let frontal = ViolaJones::from_files(
         &[(&std::path::Path::new(facerecon_vision::detect::OPENCV_DATA_DIR).join(facerecon_vision::detect::FRONTAL_HAAR), false)],
         DetectorParams::opencv(),

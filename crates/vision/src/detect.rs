@@ -4,9 +4,9 @@
 //! LBP features over a grey image pyramid, exactly as OpenCV's
 //! `CascadeClassifier::detectMultiScale` does (same pyramid sizes, window steps, variance
 //! normalisation, early rejection and `groupRectangles`), for several cascades at once —
-//! by default a frontal cascade, a profile cascade and the same profile cascade mirrored
-//! (which finds faces turned the other way without flipping the image) — and merges their
-//! faces by non-maximum suppression.
+//! by default a frontal Haar cascade, a frontal LBP cascade, a profile cascade and the same
+//! profile cascade mirrored (which finds faces turned the other way without flipping the
+//! image) — and merges their faces by non-maximum suppression.
 //!
 //! Cascade files come from Debian's `opencv-data` package
 //! (`/usr/share/opencv4/haarcascades`, `/usr/share/opencv4/lbpcascades`).
@@ -171,8 +171,11 @@ fn read_cascade(path: &Path) -> Result<Cascade, DetectError> {
 }
 
 impl ViolaJones {
-    /// The product detector from `opencv-data`'s default location: frontal Haar, profile
-    /// Haar and mirrored profile Haar, default parameters.
+    /// The product detector from `opencv-data`'s default location: frontal Haar
+    /// (`haar-frontal`), improved frontal LBP (`lbp-frontal`), profile Haar
+    /// (`haar-profile`) and the mirrored profile (`haar-profile-mirrored`), default
+    /// parameters. The combination was chosen on the faces-300w train folders
+    /// (docs/decisions/0400-face-detector.md).
     pub fn load_default() -> Result<Self, DetectError> {
         Self::load_default_from(Path::new(OPENCV_DATA_DIR))
     }
@@ -181,11 +184,13 @@ impl ViolaJones {
     /// `haarcascades/` and `lbpcascades/`).
     pub fn load_default_from(dir: &Path) -> Result<Self, DetectError> {
         let frontal = read_cascade(&dir.join(FRONTAL_HAAR))?;
+        let lbp = read_cascade(&dir.join(FRONTAL_LBP_IMPROVED))?;
         let profile = read_cascade(&dir.join(PROFILE_HAAR))?;
         let mirrored = profile.mirrored();
         Self::new(
             vec![
                 NamedCascade { name: "haar-frontal".into(), cascade: frontal },
+                NamedCascade { name: "lbp-frontal".into(), cascade: lbp },
                 NamedCascade { name: "haar-profile".into(), cascade: profile },
                 NamedCascade { name: "haar-profile-mirrored".into(), cascade: mirrored },
             ],
