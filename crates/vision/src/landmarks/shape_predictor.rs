@@ -228,11 +228,15 @@ impl ShapePredictor {
         let to_img = BoxTransform::new(face_box);
         let mut shape = self.initial_shape.clone();
         let mut features = Vec::new();
+        let mut leaves: Vec<&[f32]> = Vec::new();
         for level in &self.levels {
             self.extract_features(image, &to_img, &shape, level, &mut features);
-            for tree in &level.trees {
-                let leaf = tree.leaf(&features, shape.len());
-                for (s, l) in shape.iter_mut().zip(leaf) {
+            // All trees of a level read the same features: find every leaf first, then add
+            // them (in tree order, as dlib does), so the scattered leaf reads overlap.
+            leaves.clear();
+            leaves.extend(level.trees.iter().map(|t| t.leaf(&features, shape.len())));
+            for leaf in &leaves {
+                for (s, l) in shape.iter_mut().zip(leaf.iter()) {
                     *s += *l;
                 }
             }

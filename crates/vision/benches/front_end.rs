@@ -1,0 +1,80 @@
+//! Front-end speed (DESIGN §9): landmarks alone per face (goal < 2 ms) and detection +
+//! landmarks per 640×480 photo (goal < 20 ms, 2 cores). The photo is made at bench time
+//! from a faces-300w photo (centre-cropped to 4:3, resized); nothing derived is stored.
+//!
+//!     cargo bench -p facerecon-vision --bench front_end
+
+#[path = "../tests/support/faces300w.rs"]
+mod faces300w;
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use facerecon_vision::detect::ViolaJones;
+use facerecon_vision::landmarks::{BoxCalibration, ShapePredictor};
+use facerecon_vision::pipeline::FrontEnd;
+use std::hint::black_box;
+
+/// 1024×768 (4:3) with a frontal face of about 300 px, found by dlib's HOG detector.
+const PHOTO: &str = "afw/1204062305_1.jpg";
+
+/// The largest 4:3 window of the photo centred (as far as possible) on the annotated
+/// face, resized to 640×480.
+fn photo_640x480() -> image::RgbImage {
+    let dir = faces300w::dataset_dir();
+    let img = faces300w::load_rgb(&dir, PHOTO);
+    let [fx, fy] = faces300w::landmark_box(&faces300w::read_pts(&dir, PHOTO)).center();
+    let (w, h) = (img.width(), img.height());
+    let (cw, ch) = if w * 3 > h * 4 { (h * 4 / 3, h) } else { (w, w * 3 / 4) };
+    let x = (fx as i64 - cw as i64 / 2).clamp(0, (w - cw) as i64) as u32;
+    let y = (fy as i64 - ch as i64 / 2).clamp(0, (h - ch) as i64) as u32;
+    let cropped = image::imageops::crop_imm(&img, x, y, cw, ch).to_image();
+    image::imageops::resize(&cropped, 640, 480, image::imageops::FilterType::CatmullRom)
+}
+
+/// CPU time (user + system) of the whole process (all threads) so far, in seconds,
+/// from /proc (clock ticks of 10 ms): a contention-independent figure beside criterion's
+/// wall-clock times on a shared machine.
+fn process_cpu_seconds() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    let fields: Vec<&str> = stat.rsplit_once(')').map(|(_, r)| r.split_whitespace().collect()).unwrap_or_default();
+    // after the command name: state is field 3, utime 14, stime 15 (1-based in proc(5))
+    let ticks = |i: usize| fields.get(i - 3).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    (ticks(14) + ticks(15)) / 100.0
+}
+
+fn cpu_per_call(n: usize, mut f: impl FnMut()) -> f64 {
+    let t0 = process_cpu_seconds();
+    for _ in 0..n {
+        f();
+    }
+    (process_cpu_seconds() - t0) / n as f64
+}
+
+fn benches(c: &mut Criterion) {
+    let dir = faces300w::dataset_dir();
+    let sp = ShapePredictor::load_default().expect("dlib model");
+    let refs = faces300w::read_dlib_reference(&dir);
+    let r = refs.iter().find(|r| r.path == PHOTO && r.box_kind == "dlib_hog").expect("reference row");
+    let img = faces300w::load_rgb(&dir, PHOTO);
+    let b = r.face_box();
+    c.bench_function("landmarks_per_face", |bench| bench.iter(|| black_box(sp.predict(black_box(&img), &b))));
+    eprintln!("landmarks_per_face: {:.3} ms CPU per call", 1e3 * cpu_per_call(300, || {
+        black_box(sp.predict(black_box(&img), &b));
+    }));
+
+    let front = FrontEnd::new(Box::new(ViolaJones::load_default().expect("cascades")), Box::new(sp.clone()))
+        .with_calibration(BoxCalibration::viola_jones_to_dlib());
+    let small = photo_640x480();
+    let faces = front.run(&small).unwrap();
+    eprintln!("640×480 photo: {} face(s)", faces.len());
+    c.bench_function("detect_and_landmarks_640x480", |bench| bench.iter(|| black_box(front.run(black_box(&small)).unwrap())));
+    eprintln!("detect_and_landmarks_640x480: {:.3} ms CPU per call (all threads)", 1e3 * cpu_per_call(30, || {
+        black_box(front.run(black_box(&small)).unwrap());
+    }));
+}
+
+criterion_group! {
+    name = front_end;
+    config = Criterion::default().sample_size(30);
+    targets = benches
+}
+criterion_main!(front_end);
