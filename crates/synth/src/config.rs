@@ -6,9 +6,10 @@ use crate::SynthError;
 /// upwards, the generator caps it at [`SynthConfig::max_crop_side`].
 pub const BUCKET_RANGES: [(f32, f32); 4] = [(224.0, f32::INFINITY), (128.0, 224.0), (64.0, 128.0), (32.0, 64.0)];
 
-/// Resolution bucket of a square crop side `s` (DESIGN §3); `None` below 32 px.
+/// Resolution bucket of a square crop side `s` (DESIGN §3); `None` below 32 px. The
+/// router's own definition ([`facerecon_vision::crop::Bucket`]), as a JSON-friendly index.
 pub fn bucket_of(side: f32) -> Option<u8> {
-    BUCKET_RANGES.iter().position(|&(lo, hi)| side >= lo && side < hi).map(|b| b as u8)
+    facerecon_vision::crop::Bucket::from_side(side).index().map(|b| b as u8)
 }
 
 /// Ranges of a synthetic run. `Default` is the project's training/test distribution.

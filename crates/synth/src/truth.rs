@@ -44,8 +44,10 @@ pub struct Crop {
 
 impl Crop {
     pub fn of_box(b: &PixelBox) -> Self {
-        let side = 1.3 * (b.x1 - b.x0).max(b.y1 - b.y0);
-        Crop { cx: 0.5 * (b.x0 + b.x1), cy: 0.5 * (b.y0 + b.y1), side, bucket: crate::config::bucket_of(side) }
+        // The front end's crop rule, so that ground truth and pipeline frame faces alike.
+        let face = facerecon_vision::face::FaceBox { x0: b.x0, y0: b.y0, x1: b.x1, y1: b.y1 };
+        let (left, top, side) = facerecon_vision::crop::crop_square(&face);
+        Crop { cx: left + 0.5 * side, cy: top + 0.5 * side, side, bucket: crate::config::bucket_of(side) }
     }
 }
 
