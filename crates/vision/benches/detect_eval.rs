@@ -87,9 +87,9 @@ fn main() {
             } else {
                 ViolaJones::load_default().unwrap()
             };
-            // DETECT_STEP_PREFILTERED=1: the faster step rule (see DetectorParams).
-            if std::env::var("DETECT_STEP_PREFILTERED").is_ok() {
-                let p = DetectorParams { step_on_prefiltered: true, ..det.params().clone() };
+            // DETECT_STEP_OPENCV=1: OpenCV's step rule on the source scale (see DetectorParams).
+            if std::env::var("DETECT_STEP_OPENCV").is_ok() {
+                let p = DetectorParams { step_on_prefiltered: false, ..det.params().clone() };
                 det.set_params(p).unwrap();
             }
             let t = Instant::now();
@@ -124,7 +124,8 @@ fn tune(photos: &[Photo], dir: &std::path::Path) {
     ];
     let paths: Vec<(PathBuf, bool)> = files.iter().map(|(_, f, m)| (dir.join(f), *m)).collect();
     let refs: Vec<(&std::path::Path, bool)> = paths.iter().map(|(p, m)| (p.as_path(), *m)).collect();
-    let params = DetectorParams { scale_factor: sf, min_size_fraction: frac, ..Default::default() };
+    // The tune run of docs/decisions/0400 used OpenCV's step rule (step_on_prefiltered off).
+    let params = DetectorParams { scale_factor: sf, min_size_fraction: frac, step_on_prefiltered: false, ..Default::default() };
     let det = ViolaJones::from_files(&refs, params.clone()).unwrap();
     let names: Vec<String> = det.cascades().iter().map(|c| c.name.clone()).collect();
     println!("cascades: {names:?}, scale {sf}, min fraction {frac}");
