@@ -82,11 +82,16 @@ fn main() {
     let dir = std::path::Path::new(detect::OPENCV_DATA_DIR);
     match mode.as_str() {
         "opencv" | "default" => {
-            let det = if mode == "opencv" {
+            let mut det = if mode == "opencv" {
                 ViolaJones::from_files(&[(&dir.join(detect::FRONTAL_HAAR), false)], DetectorParams::opencv()).unwrap()
             } else {
                 ViolaJones::load_default().unwrap()
             };
+            // DETECT_STEP_OPENCV=1: OpenCV's step rule on the source scale (see DetectorParams).
+            if std::env::var("DETECT_STEP_OPENCV").is_ok() {
+                let p = DetectorParams { step_on_prefiltered: false, ..det.params().clone() };
+                det.set_params(p).unwrap();
+            }
             let t = Instant::now();
             let found: Vec<bool> = photos
                 .par_iter()
@@ -119,7 +124,8 @@ fn tune(photos: &[Photo], dir: &std::path::Path) {
     ];
     let paths: Vec<(PathBuf, bool)> = files.iter().map(|(_, f, m)| (dir.join(f), *m)).collect();
     let refs: Vec<(&std::path::Path, bool)> = paths.iter().map(|(p, m)| (p.as_path(), *m)).collect();
-    let params = DetectorParams { scale_factor: sf, min_size_fraction: frac, ..Default::default() };
+    // The tune run of docs/decisions/0400 used OpenCV's step rule (step_on_prefiltered off).
+    let params = DetectorParams { scale_factor: sf, min_size_fraction: frac, step_on_prefiltered: false, ..Default::default() };
     let det = ViolaJones::from_files(&refs, params.clone()).unwrap();
     let names: Vec<String> = det.cascades().iter().map(|c| c.name.clone()).collect();
     println!("cascades: {names:?}, scale {sf}, min fraction {frac}");

@@ -43,6 +43,11 @@ fn bench(c: &mut Criterion) {
     cpu_per_call("default", || {
         det.detect_faces(&img);
     });
+    let mut slow = det.clone();
+    slow.set_params(DetectorParams { step_on_prefiltered: false, ..det.params().clone() }).unwrap();
+    cpu_per_call("default with OpenCV's step rule", || {
+        slow.detect_faces(&img);
+    });
     let mut opencv_like = det.clone();
     opencv_like.set_params(DetectorParams::opencv()).unwrap();
     cpu_per_call("opencv params", || {

@@ -88,6 +88,11 @@ pub struct DetectorParams {
     /// least twice the cascade window, so the pyramid starts from an anti-aliased image.
     /// Off in [`DetectorParams::opencv`]. Default on.
     pub prefilter: bool,
+    /// With `prefilter`, apply OpenCV's step rule (2 px below scale 2, else 1 px) to the
+    /// scale relative to the prefiltered image rather than to the source: about 3× fewer
+    /// windows on the first levels, half the detection time. Default on; off in
+    /// [`DetectorParams::opencv`].
+    pub step_on_prefiltered: bool,
     /// Non-maximum suppression across cascades: IoU above which the weaker face is dropped.
     /// Default 0.3.
     pub nms_iou: f32,
@@ -105,6 +110,7 @@ impl Default for DetectorParams {
             min_size_fraction: 0.1,
             max_size: None,
             prefilter: true,
+            step_on_prefiltered: true,
             nms_iou: 0.3,
             nms_containment: 0.7,
         }
@@ -115,7 +121,7 @@ impl DetectorParams {
     /// OpenCV's `detectMultiScale` settings of the reference figure: scale 1.1,
     /// 3 neighbours, min size 24 px, no relative minimum, no prefilter.
     pub fn opencv() -> Self {
-        DetectorParams { prefilter: false, min_size_fraction: 0.0, ..Default::default() }
+        DetectorParams { prefilter: false, step_on_prefiltered: false, min_size_fraction: 0.0, ..Default::default() }
     }
 
     fn validate(&self) -> Result<(), DetectError> {
@@ -318,7 +324,8 @@ impl ViolaJones {
             .map(|(li, ci, rows)| {
                 let mut out = Vec::new();
                 if let Some(c) = &compiled[li][ci] {
-                    scan::scan_rows(c, &levels[li].integral, levels[li].scale, rows, &mut out);
+                    let step_scale = if p.step_on_prefiltered { levels[li].scale / k as f32 } else { levels[li].scale };
+                    scan::scan_rows(c, &levels[li].integral, levels[li].scale, step_scale, rows, &mut out);
                 }
                 (ci, out)
             })

@@ -221,12 +221,20 @@ pub struct Rect {
 /// Scans rows `rows` of a level, OpenCV's way: step 2 px below scale 2 (1 px above), and a
 /// window rejected by the very first stage also skips the next position. Accepted windows
 /// are returned as rectangles in source pixels (`round(x·f)`, `round(y·f)`, window × f).
-pub fn scan_rows(c: &Compiled<'_>, ii: &Integral, scale: f32, rows: std::ops::Range<usize>, out: &mut Vec<(Rect, f32)>) {
+/// `step_scale` decides the step (OpenCV: the level's scale, `scale`).
+pub fn scan_rows(
+    c: &Compiled<'_>,
+    ii: &Integral,
+    scale: f32,
+    step_scale: f32,
+    rows: std::ops::Range<usize>,
+    out: &mut Vec<(Rect, f32)>,
+) {
     let (ex, ey) = c.extent;
     if ii.width < ex || ii.height < ey {
         return;
     }
-    let step = if scale >= 2.0 { 1 } else { 2 };
+    let step = if step_scale >= 2.0 { 1 } else { 2 };
     let win_w = (f64::from(c.cascade.width) * f64::from(scale)).round() as i32;
     let win_h = (f64::from(c.cascade.height) * f64::from(scale)).round() as i32;
     let y_end = rows.end.min(ii.height - ey + 1);
