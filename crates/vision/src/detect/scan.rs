@@ -50,6 +50,8 @@ pub struct Compiled<'a> {
     stumps_only: bool,
     norm: [usize; 4],
     norm_area: f64,
+    any_tilted: bool,
+    extent: (usize, usize),
 }
 
 impl<'a> Compiled<'a> {
@@ -104,7 +106,10 @@ impl<'a> Compiled<'a> {
         let (w, h) = (cascade.width, cascade.height);
         let norm = [at(1, 1), at(w - 1, 1), at(1, h - 1), at(w - 1, h - 1)];
         let norm_area = f64::from((w - 2).max(0) * (h - 2).max(0));
-        Compiled { cascade, haar, lbp, stages, weak, nodes, subsets, leaves, stumps_only, norm, norm_area }
+        let any_tilted = cascade.has_tilted();
+        let (ex, ey) = cascade.extent();
+        let extent = (ex as usize, ey as usize);
+        Compiled { cascade, haar, lbp, stages, weak, nodes, subsets, leaves, stumps_only, norm, norm_area, any_tilted, extent }
     }
 
     pub fn cascade(&self) -> &Cascade {
@@ -130,7 +135,7 @@ impl<'a> Compiled<'a> {
                 if self.norm_area as f32 * inv >= 0.1 {
                     return Outcome::Flat;
                 }
-                let t = if self.haar.iter().any(|h| h.tilted) { &ii.tilted[base..] } else { &[][..] };
+                let t = if self.any_tilted { &ii.tilted[base..] } else { &[][..] };
                 self.run(|f| {
                     let o = &self.haar[f as usize];
                     let src = if o.tilted { t } else { s };
@@ -216,13 +221,20 @@ pub struct Rect {
 /// Scans rows `rows` of a level, OpenCV's way: step 2 px below scale 2 (1 px above), and a
 /// window rejected by the very first stage also skips the next position. Accepted windows
 /// are returned as rectangles in source pixels (`round(x·f)`, `round(y·f)`, window × f).
-pub fn scan_rows(c: &Compiled<'_>, ii: &Integral, scale: f32, rows: std::ops::Range<usize>, out: &mut Vec<(Rect, f32)>) {
-    let (ex, ey) = c.cascade.extent();
-    let (ex, ey) = (ex as usize, ey as usize);
+/// `step_scale` decides the step (OpenCV: the level's scale, `scale`).
+pub fn scan_rows(
+    c: &Compiled<'_>,
+    ii: &Integral,
+    scale: f32,
+    step_scale: f32,
+    rows: std::ops::Range<usize>,
+    out: &mut Vec<(Rect, f32)>,
+) {
+    let (ex, ey) = c.extent;
     if ii.width < ex || ii.height < ey {
         return;
     }
-    let step = if scale >= 2.0 { 1 } else { 2 };
+    let step = if step_scale >= 2.0 { 1 } else { 2 };
     let win_w = (f64::from(c.cascade.width) * f64::from(scale)).round() as i32;
     let win_h = (f64::from(c.cascade.height) * f64::from(scale)).round() as i32;
     let y_end = rows.end.min(ii.height - ey + 1);
