@@ -10,8 +10,8 @@
 //! ```
 //!
 //! fitted by least squares on matched pairs (see `examples/fit_box_calibration.rs`).
-//! On faces-300w it brings the pipeline's NME from 3.37 % to 2.81 % (all 700 photos; 3.51 %
-//! → 2.87 % on the folders not used for the fit): `docs/bench/vision-landmarks.md`.
+//! On faces-300w it brings the pipeline's NME from 3.42 % to 2.83 % (all 700 photos; 3.66 %
+//! → 3.23 % on the folders not used for the fit): `docs/bench/vision-landmarks.md`.
 
 use std::collections::BTreeMap;
 
@@ -117,26 +117,35 @@ mod default_coefficients {
     /// `cargo run --release -p facerecon-vision --example eval_300w` (the same procedure as
     /// `--example fit_box_calibration`): per photo, the Viola–Jones detection that best
     /// overlaps the annotated landmark box (IoU > 0.3) paired with dlib's HOG box for that
-    /// photo from `dlib_reference.csv`; 345 pairs; least squares per detector source with
-    /// ≥ 10 pairs (frontal 316, profile 21), the fit on all pairs for the rest (mirrored
-    /// profile had 8). Detector: product cascades, smallest face 10 % of the shorter side.
+    /// photo from `dlib_reference.csv`; 362 pairs; least squares per detector source with
+    /// ≥ 10 pairs (haar-frontal 238, lbp-frontal 97, haar-profile 20), the fit on all pairs
+    /// for the rest (haar-profile-mirrored had 7). Detector: product cascades, smallest face
+    /// 10 % of the shorter side.
     pub fn viola_jones_to_dlib() -> BoxCalibration {
         let fallback = BoxMap {
-            ax: -0.018875115, bx: 3.9738936, ay: 0.05925301, by: 4.9341598,
-            sw: 0.84803593, tw: 10.891806, sh: 0.84658545, th: 11.102953,
+            ax: -0.022252448, bx: 3.7253146, ay: 0.052395754, by: 0.24760456,
+            sw: 0.86494243, tw: 33.4239, sh: 0.8710626, th: 31.817225,
         };
-        let frontal = BoxMap {
-            ax: -0.00010050452, bx: 0.1400739, ay: 0.06048922, by: 4.421394,
-            sw: 0.8619312, tw: 7.920841, sh: 0.8620371, th: 7.897427,
+        let haar_frontal = BoxMap {
+            ax: 0.0013332064, bx: -0.23612197, ay: 0.06295136, by: 2.5278344,
+            sw: 0.83808666, tw: 12.984389, sh: 0.83818126, th: 12.975257,
         };
-        let profile = BoxMap {
-            ax: -0.1605094, bx: -5.1291685, ay: 0.040022653, by: 11.513396,
-            sw: 0.7815769, tw: 20.834494, sh: 0.7734253, th: 18.972273,
+        let haar_profile = BoxMap {
+            ax: -0.1603347, bx: -5.50259, ay: 0.041583166, by: 8.17743,
+            sw: 0.7813841, tw: 21.246582, sh: 0.7734077, th: 19.009928,
+        };
+        let lbp_frontal = BoxMap {
+            ax: -0.013871939, bx: 0.353067, ay: -0.01379415, by: 4.0870247,
+            sw: 1.2231499, tw: 15.262857, sh: 1.2654889, th: 5.714596,
         };
         BoxCalibration {
-            by_source: [("haar-frontal".to_string(), frontal), ("haar-profile".to_string(), profile)]
-                .into_iter()
-                .collect(),
+            by_source: [
+                ("haar-frontal".to_string(), haar_frontal),
+                ("haar-profile".to_string(), haar_profile),
+                ("lbp-frontal".to_string(), lbp_frontal),
+            ]
+            .into_iter()
+            .collect(),
             fallback,
         }
     }
