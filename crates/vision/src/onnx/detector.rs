@@ -9,7 +9,7 @@ use ort::value::Tensor;
 use super::config::{BoxUnits, OnnxDetectorConfig, ResizeMode};
 use super::resample::{AxisMap, Grid, sample_nchw};
 use super::runtime::{ModelSource, load_session, model_label};
-use super::signature::{self, check_image_input, check_output, fmt_dims, read_output};
+use super::signature::{self, check_output, fmt_dims, read_output};
 use super::OnnxError;
 use crate::face::{Detection, FaceBox, FaceDetector, ModelRunError};
 
@@ -89,15 +89,7 @@ impl OnnxDetector {
     fn build(config: OnnxDetectorConfig, source: ModelSource<'_>, label: String) -> Result<Self, OnnxError> {
         let session = load_session(&config.runtime, source, &label)?;
         let contract = |message: String| OnnxError::Contract { model: label.clone(), role: ROLE, message };
-        let inputs = signature::inputs(&session).map_err(contract)?;
-        let [input] = inputs.as_slice() else {
-            return Err(contract(format!(
-                "it has {} inputs ({}); the contract is one image input",
-                inputs.len(),
-                signature::names(inputs.iter().map(|d| d.name.as_str()))
-            )));
-        };
-        let (h, w) = check_image_input(input).map_err(contract)?;
+        let (input, h, w) = signature::single_image_input(&session).map_err(contract)?;
         let input_size = match (config.input_size, w, h) {
             (None, w, h) if w > 0 && h > 0 => [w as u32, h as u32],
             (None, _, _) => {

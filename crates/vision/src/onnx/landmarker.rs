@@ -9,7 +9,7 @@ use ort::value::Tensor;
 use super::config::{OnnxLandmarkerConfig, PointUnits};
 use super::resample::{AxisMap, Grid, sample_nchw};
 use super::runtime::{ModelSource, load_session, model_label};
-use super::signature::{self, check_image_input, check_output, fmt_dims, read_output};
+use super::signature::{self, check_output, fmt_dims, read_output};
 use super::OnnxError;
 use crate::face::{Detection, FaceBox, LandmarkPredictor, Landmarks, ModelRunError};
 
@@ -96,15 +96,7 @@ impl OnnxLandmarker {
     fn build(config: OnnxLandmarkerConfig, source: ModelSource<'_>, label: String) -> Result<Self, OnnxError> {
         let session = load_session(&config.runtime, source, &label)?;
         let contract = |message: String| OnnxError::Contract { model: label.clone(), role: ROLE, message };
-        let inputs = signature::inputs(&session).map_err(contract)?;
-        let [input] = inputs.as_slice() else {
-            return Err(contract(format!(
-                "it has {} inputs ({}); the contract is one image input",
-                inputs.len(),
-                signature::names(inputs.iter().map(|d| d.name.as_str()))
-            )));
-        };
-        let (h, w) = check_image_input(input).map_err(contract)?;
+        let (input, h, w) = signature::single_image_input(&session).map_err(contract)?;
         let declared = fmt_dims(input.dims.as_deref().unwrap_or(&[]));
         if h > 0 && w > 0 && h != w {
             return Err(contract(format!("its input `{}` is {declared}; the contract needs a square crop", input.name)));

@@ -64,6 +64,21 @@ pub(crate) fn check_output(d: &Declared, shapes: &[&[i64]], wanted: &str) -> Res
     Ok(())
 }
 
+/// The model's one input (the contract allows no other), checked as an image tensor:
+/// `(input, H, W)` with `-1` for a dynamic side.
+pub(crate) fn single_image_input(session: &Session) -> Result<(Declared, i64, i64), String> {
+    let inputs = inputs(session)?;
+    let [input] = inputs.as_slice() else {
+        return Err(format!(
+            "it has {} inputs ({}); the contract is one image input",
+            inputs.len(),
+            names(inputs.iter().map(|d| d.name.as_str()))
+        ));
+    };
+    let (h, w) = check_image_input(input)?;
+    Ok((input.clone(), h, w))
+}
+
 /// An input image tensor as declared: float32 `[1|?, 3|?, H|?, W|?]`; returns `(H, W)`
 /// with `-1` for dynamic.
 pub(crate) fn check_image_input(d: &Declared) -> Result<(i64, i64), String> {
