@@ -98,6 +98,36 @@ fn check_finite<'a>(
     Ok(())
 }
 
+/// A UV sphere of radius 1 at the origin: `(directions, triangles)`. Vertex 0 is the +Z
+/// pole, then `rings − 1` rings of `segs` vertices (polar angle π·i/rings, azimuth
+/// 2π·j/segs), then the −Z pole; triangles wind counter-clockwise seen from outside.
+/// The directions are the exact unit normals. Needs `rings ≥ 2`, `segs ≥ 3`.
+pub fn uv_sphere(rings: usize, segs: usize) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
+    let mut dirs = vec![[0.0, 0.0, 1.0]];
+    for i in 1..rings {
+        let th = std::f32::consts::PI * i as f32 / rings as f32;
+        for j in 0..segs {
+            let ph = 2.0 * std::f32::consts::PI * j as f32 / segs as f32;
+            dirs.push([th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos()]);
+        }
+    }
+    dirs.push([0.0, 0.0, -1.0]);
+    let south = (dirs.len() - 1) as u32;
+    let v = |i: usize, j: usize| (1 + (i - 1) * segs + j % segs) as u32;
+    let mut t = Vec::with_capacity(2 * segs * (rings - 1));
+    for j in 0..segs {
+        t.push([0, v(1, j), v(1, j + 1)]);
+        t.push([south, v(rings - 1, j + 1), v(rings - 1, j)]);
+    }
+    for i in 1..rings - 1 {
+        for j in 0..segs {
+            t.push([v(i, j), v(i + 1, j), v(i + 1, j + 1)]);
+            t.push([v(i, j), v(i + 1, j + 1), v(i, j + 1)]);
+        }
+    }
+    (dirs, t)
+}
+
 /// Linear [0, 1] → sRGB-encoded [0, 1] (IEC 61966-2-1), clamping first.
 pub fn srgb_encode(linear: f32) -> f32 {
     let c = linear.clamp(0.0, 1.0);
@@ -122,32 +152,24 @@ pub(crate) mod test_meshes {
     /// A closed, irregular triangle mesh with every attribute: a subdivided octahedron
     /// whose vertices are pushed around so that no coordinate is "nice".
     pub fn full() -> Mesh {
-        let mut positions = Vec::new();
-        let mut triangles = Vec::new();
-        let rings = 7u32;
-        let segs = 11u32;
-        positions.push([0.0, 0.0, 91.25]);
-        for r in 1..rings {
-            let th = std::f32::consts::PI * r as f32 / rings as f32;
-            for s in 0..segs {
-                let ph = 2.0 * std::f32::consts::PI * s as f32 / segs as f32;
+        let (rings, segs) = (7usize, 11usize);
+        let (dirs, triangles) = super::uv_sphere(rings, segs);
+        // Push the sphere's vertices around so that no coordinate is "nice".
+        let positions: Vec<[f32; 3]> = (0..dirs.len())
+            .map(|k| {
+                if k == 0 {
+                    return [0.0, 0.0, 91.25];
+                }
+                if k == dirs.len() - 1 {
+                    return [0.0, 0.0, -85.5];
+                }
+                let (i, j) = ((k - 1) / segs + 1, (k - 1) % segs);
+                let th = std::f32::consts::PI * i as f32 / rings as f32;
+                let ph = 2.0 * std::f32::consts::PI * j as f32 / segs as f32;
                 let rad = 80.0 + 7.3 * (3.0 * ph).sin() * th.sin();
-                positions.push([rad * th.sin() * ph.cos() - 12.5, rad * th.sin() * ph.sin() + 3.1, rad * th.cos()]);
-            }
-        }
-        positions.push([0.0, 0.0, -85.5]);
-        let last = positions.len() as u32 - 1;
-        let ring = |r: u32, s: u32| 1 + (r - 1) * segs + s % segs;
-        for s in 0..segs {
-            triangles.push([0, ring(1, s), ring(1, s + 1)]);
-            triangles.push([last, ring(rings - 1, s + 1), ring(rings - 1, s)]);
-        }
-        for r in 1..rings - 1 {
-            for s in 0..segs {
-                triangles.push([ring(r, s), ring(r + 1, s), ring(r + 1, s + 1)]);
-                triangles.push([ring(r, s), ring(r + 1, s + 1), ring(r, s + 1)]);
-            }
-        }
+                [rad * th.sin() * ph.cos() - 12.5, rad * th.sin() * ph.sin() + 3.1, rad * th.cos()]
+            })
+            .collect();
         let normals = positions
             .iter()
             .map(|p| {

@@ -341,33 +341,8 @@ fn projection_matrices_match_reference_forms() {
 // ---- normals ----
 
 fn uv_sphere(r: f32, rings: usize, segs: usize) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
-    let mut p = vec![[0.0, 0.0, r]];
-    for i in 1..rings {
-        let th = std::f32::consts::PI * i as f32 / rings as f32;
-        for j in 0..segs {
-            let ph = 2.0 * std::f32::consts::PI * j as f32 / segs as f32;
-            p.push([
-                r * th.sin() * ph.cos(),
-                r * th.sin() * ph.sin(),
-                r * th.cos(),
-            ]);
-        }
-    }
-    p.push([0.0, 0.0, -r]);
-    let south = (p.len() - 1) as u32;
-    let v = |i: usize, j: usize| (1 + (i - 1) * segs + j % segs) as u32;
-    let mut t = Vec::new();
-    for j in 0..segs {
-        t.push([0, v(1, j), v(1, j + 1)]);
-        t.push([south, v(rings - 1, j + 1), v(rings - 1, j)]);
-    }
-    for i in 1..rings - 1 {
-        for j in 0..segs {
-            t.push([v(i, j), v(i + 1, j), v(i + 1, j + 1)]);
-            t.push([v(i, j), v(i + 1, j + 1), v(i, j + 1)]);
-        }
-    }
-    (p, t)
+    let (dirs, t) = crate::mesh::uv_sphere(rings, segs);
+    (dirs.iter().map(|d| d.map(|c| r * c)).collect(), t)
 }
 
 #[test]

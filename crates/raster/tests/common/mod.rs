@@ -321,37 +321,10 @@ pub type Mesh = (Vec<[f32; 3]>, Vec<[u32; 3]>, Vec<[f32; 3]>);
 
 /// UV sphere of radius `r` at `center` with exact (analytic) vertex normals.
 pub fn sphere(r: f32, center: [f32; 3], rings: usize, segs: usize) -> Mesh {
-    let mut dirs = vec![[0.0, 0.0, 1.0]];
-    for i in 1..rings {
-        let th = std::f32::consts::PI * i as f32 / rings as f32;
-        for j in 0..segs {
-            let ph = 2.0 * std::f32::consts::PI * j as f32 / segs as f32;
-            dirs.push([th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos()]);
-        }
-    }
-    dirs.push([0.0, 0.0, -1.0]);
-    let south = (dirs.len() - 1) as u32;
-    let v = |i: usize, j: usize| (1 + (i - 1) * segs + j % segs) as u32;
-    let mut t = Vec::new();
-    for j in 0..segs {
-        t.push([0, v(1, j), v(1, j + 1)]);
-        t.push([south, v(rings - 1, j + 1), v(rings - 1, j)]);
-    }
-    for i in 1..rings - 1 {
-        for j in 0..segs {
-            t.push([v(i, j), v(i + 1, j), v(i + 1, j + 1)]);
-            t.push([v(i, j), v(i + 1, j + 1), v(i, j + 1)]);
-        }
-    }
+    let (dirs, t) = facerecon_model::mesh::uv_sphere(rings, segs);
     let p = dirs
         .iter()
-        .map(|d| {
-            [
-                center[0] + r * d[0],
-                center[1] + r * d[1],
-                center[2] + r * d[2],
-            ]
-        })
+        .map(|d| [center[0] + r * d[0], center[1] + r * d[1], center[2] + r * d[2]])
         .collect();
     (p, t, dirs)
 }
