@@ -7,10 +7,11 @@ use ort::session::Session;
 use ort::value::Tensor;
 
 use super::config::{OnnxLandmarkerConfig, PointUnits};
-use super::resample::{AxisMap, Grid, sample_nchw};
+use super::resample::{Grid, sample_nchw};
 use super::runtime::{ModelSource, load_session, model_label};
 use super::signature::{self, check_output, fmt_dims, read_output};
 use super::OnnxError;
+use crate::crop::CropTransform;
 use crate::face::{Detection, FaceBox, LandmarkPredictor, Landmarks, ModelRunError};
 
 const ROLE: &str = "landmarker";
@@ -33,46 +34,20 @@ impl std::fmt::Debug for OnnxLandmarker {
     }
 }
 
-/// The square region of the photo the landmarker sees: top-left corner (photo position of
-/// the region's edge, pixel centres at integers) and side, in photo pixels.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) struct CropSquare {
-    pub left: f64,
-    pub top: f64,
-    pub side: f64,
-}
-
-impl CropSquare {
-    /// The box grown to `scale · max(width, height)` (extents in whole pixels,
-    /// `x1 − x0 + 1`), centred on the box centre moved by `shift · side`.
-    pub fn around(b: &FaceBox, scale: f32, shift: [f32; 2]) -> Option<Self> {
-        let ok = [b.x0, b.y0, b.x1, b.y1].iter().all(|v| v.is_finite()) && b.x1 >= b.x0 && b.y1 >= b.y0;
-        if !ok {
-            return None;
-        }
-        let (x0, y0, x1, y1) = (b.x0 as f64, b.y0 as f64, b.x1 as f64, b.y1 as f64);
-        let side = scale as f64 * (x1 - x0 + 1.0).max(y1 - y0 + 1.0);
-        let cx = 0.5 * (x0 + x1) + shift[0] as f64 * side;
-        let cy = 0.5 * (y0 + y1) + shift[1] as f64 * side;
-        side.is_finite().then_some(Self { left: cx - 0.5 * side, top: cy - 0.5 * side, side })
+/// The square region of the photo the landmarker sees, as the crate's crop transform
+/// ([`CropTransform`]: photo ↔ model-input pixels): the box grown to
+/// `scale · max(width, height)` (extents in whole pixels, `x1 − x0 + 1`, as the plug-in
+/// contract states), centred on the box centre moved by `shift · side`, onto an `n × n`
+/// input.
+pub(crate) fn crop_transform(b: &FaceBox, scale: f32, shift: [f32; 2], n: u32) -> Option<CropTransform> {
+    let ok = [b.x0, b.y0, b.x1, b.y1].iter().all(|v| v.is_finite()) && b.x1 >= b.x0 && b.y1 >= b.y0;
+    if !ok {
+        return None;
     }
-
-    /// Sampling grid of an `n × n` input: input pixel `u` covers
-    /// `[left + u·side/n, left + (u+1)·side/n]`.
-    pub fn grid(&self, n: u32) -> Grid {
-        let a = self.side / n as f64;
-        Grid {
-            width: n as usize,
-            height: n as usize,
-            x: AxisMap { scale: a, offset: self.left + 0.5 * a },
-            y: AxisMap { scale: a, offset: self.top + 0.5 * a },
-        }
-    }
-
-    /// Crop-normalised point (0 = left/top edge, 1 = right/bottom edge) → photo position.
-    pub fn to_photo(self, q: [f64; 2]) -> [f64; 2] {
-        [self.left + q[0] * self.side, self.top + q[1] * self.side]
-    }
+    let side = scale * (b.x1 - b.x0 + 1.0).max(b.y1 - b.y0 + 1.0);
+    let [cx, cy] = b.center();
+    let (cx, cy) = (cx + shift[0] * side, cy + shift[1] * side);
+    (side.is_finite() && side > 0.0).then(|| CropTransform::from_square(cx - 0.5 * side, cy - 0.5 * side, side, n))
 }
 
 impl OnnxLandmarker {
@@ -141,11 +116,11 @@ impl OnnxLandmarker {
 
 impl LandmarkPredictor for OnnxLandmarker {
     fn predict(&self, image: &RgbImage, face: &Detection) -> Result<Landmarks, ModelRunError> {
-        let crop = CropSquare::around(&face.face_box, self.config.crop_scale, self.config.crop_shift)
-            .ok_or_else(|| self.err(format!("invalid face box {:?}", face.face_box)))?;
         let n = self.input_size;
+        let crop = crop_transform(&face.face_box, self.config.crop_scale, self.config.crop_shift, n)
+            .ok_or_else(|| self.err(format!("invalid face box {:?}", face.face_box)))?;
         let mut tensor = Vec::new();
-        sample_nchw(image, &crop.grid(n), &self.config.pixels, &mut tensor);
+        sample_nchw(image, &Grid::of_crop(&crop, n), &self.config.pixels, &mut tensor);
         let value = Tensor::from_array(([1usize, 3, n as usize, n as usize], tensor)).map_err(|e| self.err(e.to_string()))?;
         let mut session = self.session.lock().unwrap_or_else(|p| p.into_inner());
         let outputs = session
@@ -162,13 +137,12 @@ impl LandmarkPredictor for OnnxLandmarker {
         let points = data
             .chunks_exact(2)
             .map(|q| {
-                let q = [q[0] as f64, q[1] as f64];
+                // To input pixels (centres at integers), then through the crop transform.
                 let q = match self.config.point_units {
-                    PointUnits::Normalized => q,
-                    PointUnits::Pixels => [(q[0] + 0.5) / n as f64, (q[1] + 0.5) / n as f64],
+                    PointUnits::Normalized => [q[0] * n as f32 - 0.5, q[1] * n as f32 - 0.5],
+                    PointUnits::Pixels => [q[0], q[1]],
                 };
-                let [x, y] = crop.to_photo(q);
-                [x as f32, y as f32]
+                crop.to_image(q)
             })
             .collect();
         let confidence = match &self.config.confidence_output {
@@ -193,19 +167,23 @@ mod tests {
     use super::*;
 
     #[test]
-    fn crop_square_grows_the_pixel_extent_and_maps_back() {
-        // Box over pixels 10..=29 × 20..=59: extents 20 × 40, centre (19.5, 39.5).
+    fn crop_grows_the_pixel_extent_and_maps_back() {
+        // Box over pixels 10..=29 × 20..=59: extents 20 × 40, centre (19.5, 39.5); 1.5× → a
+        // 60-px square with edges at (-10.5, 9.5), onto a 12-px input (5 photo px per input px).
         let b = FaceBox { x0: 10.0, y0: 20.0, x1: 29.0, y1: 59.0 };
-        let c = CropSquare::around(&b, 1.5, [0.0, 0.0]).unwrap();
-        assert_eq!(c, CropSquare { left: 19.5 - 30.0, top: 39.5 - 30.0, side: 60.0 });
-        assert_eq!(c.to_photo([0.5, 0.5]), [19.5, 39.5]);
-        // 60 photo px over 12 input px: input pixel 0 samples the centre of the first 5 px.
-        let g = c.grid(12);
-        assert_eq!(g.x.scale, 5.0);
-        assert_eq!(g.x.to_image(0.0), -10.5 + 2.5);
-        let shifted = CropSquare::around(&b, 1.0, [0.0, 0.25]).unwrap();
-        assert_eq!((shifted.left, shifted.top, shifted.side), (19.5 - 20.0, 39.5 + 10.0 - 20.0, 40.0));
-        assert!(CropSquare::around(&FaceBox { x0: 5.0, y0: 0.0, x1: 4.0, y1: 1.0 }, 1.3, [0.0; 2]).is_none());
-        assert!(CropSquare::around(&FaceBox { x0: f32::NAN, y0: 0.0, x1: 4.0, y1: 1.0 }, 1.3, [0.0; 2]).is_none());
+        let t = crop_transform(&b, 1.5, [0.0, 0.0], 12).unwrap();
+        assert_eq!(t, CropTransform::from_square(-10.5, 9.5, 60.0, 12));
+        let centre = t.to_image([5.5, 5.5]);
+        assert!((centre[0] - 19.5).abs() < 1e-5 && (centre[1] - 39.5).abs() < 1e-5, "{centre:?}");
+        // Input pixel 0 samples the centre of the first 5 photo pixels: -10.5 + 2.5.
+        let g = Grid::of_crop(&t, 12);
+        assert!((g.x.scale - 5.0).abs() < 1e-6);
+        assert!((g.x.to_image(0.0) - (-8.0)).abs() < 1e-5);
+        assert!((g.y.to_image(11.0) - (9.5 + 57.5)).abs() < 1e-4);
+        let shifted = crop_transform(&b, 1.0, [0.0, 0.25], 40).unwrap();
+        assert_eq!(shifted, CropTransform::from_square(19.5 - 20.0, 39.5 + 10.0 - 20.0, 40.0, 40));
+        assert!(crop_transform(&FaceBox { x0: 5.0, y0: 0.0, x1: 4.0, y1: 1.0 }, 1.3, [0.0; 2], 8).is_none());
+        assert!(crop_transform(&FaceBox { x0: f32::NAN, y0: 0.0, x1: 4.0, y1: 1.0 }, 1.3, [0.0; 2], 8).is_none());
+        assert!(crop_transform(&b, 0.0, [0.0; 2], 8).is_none());
     }
 }

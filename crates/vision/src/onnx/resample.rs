@@ -10,6 +10,8 @@
 
 use image::RgbImage;
 
+use crate::crop::CropTransform;
+
 use super::config::{ChannelOrder, PixelNormalisation};
 
 /// `x = scale·u + offset`: tensor pixel centre `u` → image position `x` (pixel centres at
@@ -33,6 +35,16 @@ pub(crate) struct Grid {
     pub height: usize,
     pub x: AxisMap,
     pub y: AxisMap,
+}
+
+impl Grid {
+    /// The `n × n` grid of a face crop: input pixel `u` samples the photo at
+    /// `crop.to_image(u)` (the crate's one crop ↔ image transform, inverted per axis).
+    pub fn of_crop(crop: &CropTransform, n: u32) -> Self {
+        let a = 1.0 / crop.scale as f64;
+        let axis = |offset: f32| AxisMap { scale: a, offset: -(offset as f64) * a };
+        Grid { width: n as usize, height: n as usize, x: axis(crop.offset[0]), y: axis(crop.offset[1]) }
+    }
 }
 
 /// Filter taps of every tensor pixel along one axis, flattened: pixel `u` reads source
