@@ -1,0 +1,204 @@
+//! JPEG decoding through libjpeg-turbo (TurboJPEG API of the system library), so that the
+//! pixels are the ones OpenCV's `imread` — and hence dlib's tools and its reference
+//! landmarks — see: accurate integer IDCT (ISLOW), fancy (triangular) chroma upsampling,
+//! libjpeg's YCbCr → RGB tables. See docs/decisions/0501-jpeg-decoder.md.
+//!
+//! The C library reports errors through `setjmp`/`longjmp` inside TurboJPEG itself; on the
+//! Rust side every call is a plain return code, so nothing unwinds across the boundary.
+//! Warnings (corrupt entropy data, a premature end of file) are not fatal, as in OpenCV:
+//! the image decoded so far is returned (libjpeg fills what it could not decode in grey).
+
+use std::ffi::{CStr, c_int, c_ulong};
+
+use image::RgbImage;
+use image::metadata::Orientation;
+use turbojpeg_sys as tj;
+
+use super::{DecodeError, DecodeLimits};
+
+/// An initialised TurboJPEG decompressor, destroyed on drop. One per decode: a handle
+/// holds per-image state and is not shared between threads.
+struct Decompressor(tj::tjhandle);
+
+impl Decompressor {
+    fn new() -> Result<Self, DecodeError> {
+        // SAFETY: no arguments; a null return is handled.
+        let handle = unsafe { tj::tjInitDecompress() };
+        if handle.is_null() {
+            return Err(DecodeError::AllocationLimit {
+                format: "JPEG".into(),
+                reason: "libjpeg-turbo could not allocate a decompressor".into(),
+            });
+        }
+        Ok(Self(handle))
+    }
+
+    /// Whether the last failed call only raised a warning (the output is still usable).
+    fn last_was_warning(&self) -> bool {
+        // SAFETY: the handle is valid for self's lifetime.
+        unsafe { tj::tjGetErrorCode(self.0) == tj::TJERR_TJERR_WARNING as c_int }
+    }
+
+    fn last_error(&self) -> DecodeError {
+        // SAFETY: the handle is valid; TurboJPEG returns a NUL-terminated string it owns
+        // (never null for a valid handle), copied out before the next call.
+        let msg = unsafe {
+            let p = tj::tjGetErrorStr2(self.0);
+            if p.is_null() { "unknown libjpeg-turbo error".into() } else { CStr::from_ptr(p).to_string_lossy().into_owned() }
+        };
+        // TurboJPEG prefixes its own messages with the function name: not useful to a user.
+        let reason = match msg.split_once("(): ") {
+            Some((_, rest)) => rest.to_string(),
+            None => msg,
+        };
+        DecodeError::Corrupt { format: "JPEG".into(), reason }
+    }
+}
+
+impl Drop for Decompressor {
+    fn drop(&mut self) {
+        // SAFETY: created by tjInitDecompress, destroyed exactly once.
+        unsafe {
+            tj::tjDestroy(self.0);
+        }
+    }
+}
+
+/// Decodes JPEG bytes (already checked against `limits.max_encoded_bytes`) into RGB,
+/// the EXIF orientation applied.
+pub(super) fn decode(bytes: &[u8], limits: &DecodeLimits) -> Result<RgbImage, DecodeError> {
+    let len = c_ulong::try_from(bytes.len()).map_err(|_| DecodeError::EncodedTooLarge {
+        bytes: bytes.len(),
+        limit: limits.max_encoded_bytes,
+    })?;
+    let d = Decompressor::new()?;
+    let (mut width, mut height, mut subsamp, mut colorspace) = (0 as c_int, 0 as c_int, 0 as c_int, 0 as c_int);
+    // SAFETY: `bytes` outlives the call and `len` is its length; the out-pointers are valid.
+    let rc = unsafe {
+        tj::tjDecompressHeader3(d.0, bytes.as_ptr(), len, &mut width, &mut height, &mut subsamp, &mut colorspace)
+    };
+    // A warning while reading the header (e.g. data ending inside it) is fatal only when no
+    // image size came out of it.
+    if rc != 0 && (!d.last_was_warning() || width <= 0 || height <= 0) {
+        return Err(d.last_error());
+    }
+    // libjpeg limits dimensions to 65500, so these are positive and fit in u32.
+    let (w, h) = (u32::try_from(width).unwrap_or(0), u32::try_from(height).unwrap_or(0));
+    if w == 0 || h == 0 {
+        return Err(DecodeError::ZeroSize { width: w, height: h });
+    }
+    let pixels = u64::from(w) * u64::from(h);
+    if pixels > limits.max_pixels {
+        return Err(DecodeError::TooManyPixels { width: w, height: h, pixels, limit: limits.max_pixels });
+    }
+
+    // CMYK and YCCK (Adobe) JPEGs: libjpeg converts YCCK → CMYK but not CMYK → RGB; the
+    // conversion below is the one the `image` crate applies (Adobe's inverted CMYK).
+    let cmyk = colorspace == tj::TJCS_TJCS_CMYK as c_int || colorspace == tj::TJCS_TJCS_YCCK as c_int;
+    let (format, channels) = if cmyk { (tj::TJPF_TJPF_CMYK, 4) } else { (tj::TJPF_TJPF_RGB, 3) };
+    let size = usize::try_from(pixels * channels).map_err(|_| too_much_memory(pixels))?;
+    let mut buf = Vec::new();
+    buf.try_reserve_exact(size).map_err(|_| too_much_memory(pixels))?;
+    buf.resize(size, 0u8);
+    // Default flags = OpenCV's settings: ISLOW IDCT, fancy upsampling, top-down rows. The
+    // scan limit refuses progressive files with more than 500 scans (a CPU-time bomb: each
+    // scan re-walks the whole coefficient buffer); no real encoder writes more than ~10.
+    let flags = tj::TJFLAG_LIMITSCANS as c_int;
+    // SAFETY: `buf` holds exactly width × height × channels bytes, the size TurboJPEG
+    // writes for this pixel format and pitch; `bytes` is valid for `len` bytes.
+    let rc = unsafe {
+        tj::tjDecompress2(
+            d.0,
+            bytes.as_ptr(),
+            len,
+            buf.as_mut_ptr(),
+            width,
+            width * channels as c_int,
+            height,
+            format as c_int,
+            flags,
+        )
+    };
+    if rc != 0 && !d.last_was_warning() {
+        return Err(d.last_error());
+    }
+    let rgb = if cmyk { cmyk_to_rgb(&buf) } else { buf };
+    let rgb = RgbImage::from_raw(w, h, rgb).ok_or_else(|| too_much_memory(pixels))?; // sized above: never fails
+    let mut image = image::DynamicImage::ImageRgb8(rgb);
+    image.apply_orientation(exif_orientation(bytes).unwrap_or(Orientation::NoTransforms));
+    Ok(image.into_rgb8())
+}
+
+fn too_much_memory(pixels: u64) -> DecodeError {
+    DecodeError::AllocationLimit { format: "JPEG".into(), reason: format!("no memory for {pixels} pixels") }
+}
+
+/// Adobe CMYK as libjpeg returns it (stored inverted: 255 = no ink) → RGB, each channel
+/// times K / 255, rounded.
+fn cmyk_to_rgb(cmyk: &[u8]) -> Vec<u8> {
+    let mul = |a: u8, k: u8| {
+        let t = u32::from(a) * u32::from(k) + 128;
+        (((t >> 8) + t) >> 8) as u8
+    };
+    cmyk.chunks_exact(4).flat_map(|p| [mul(p[0], p[3]), mul(p[1], p[3]), mul(p[2], p[3])]).collect()
+}
+
+/// The EXIF orientation of a JPEG: the first APP1 segment holding "Exif\0\0" before the
+/// first scan. Walks the marker segments by their lengths, never past the end of `bytes`;
+/// anything malformed means "no orientation" (the photo stays as stored).
+fn exif_orientation(bytes: &[u8]) -> Option<Orientation> {
+    let mut pos = 2; // after SOI
+    loop {
+        // Markers may be preceded by fill bytes 0xFF.
+        if *bytes.get(pos)? != 0xFF {
+            return None;
+        }
+        while *bytes.get(pos)? == 0xFF {
+            pos += 1;
+        }
+        let marker = *bytes.get(pos)?;
+        pos += 1;
+        match marker {
+            0xDA | 0xD9 => return None, // start of scan / end of image: no EXIF before the pixels
+            0x01 | 0xD0..=0xD7 => continue, // standalone markers, no length
+            _ => {}
+        }
+        let len = usize::from(u16::from_be_bytes([*bytes.get(pos)?, *bytes.get(pos + 1)?]));
+        let segment = bytes.get(pos + 2..pos.checked_add(len)?)?;
+        if marker == 0xE1 {
+            if let Some(tiff) = segment.strip_prefix(b"Exif\0\0") {
+                return Orientation::from_exif_chunk(tiff);
+            }
+        }
+        pos += len.max(2);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cmyk_conversion_is_the_rounded_product() {
+        // Brute force against the exact rounded product for every (a, k).
+        for a in 0..=255u8 {
+            for k in 0..=255u8 {
+                let expect = (f64::from(a) * f64::from(k) / 255.0).round() as u8;
+                assert_eq!(cmyk_to_rgb(&[a, a, a, k]), vec![expect; 3], "a {a} k {k}");
+            }
+        }
+    }
+
+    #[test]
+    fn exif_walk_survives_malformed_segments() {
+        assert_eq!(exif_orientation(&[0xFF, 0xD8]), None);
+        assert_eq!(exif_orientation(&[0xFF, 0xD8, 0xFF, 0xE1, 0xFF, 0xFF, 0x00]), None); // length past end
+        assert_eq!(exif_orientation(&[0xFF, 0xD8, 0xFF, 0xE1, 0x00]), None); // cut inside length
+        assert_eq!(exif_orientation(&[0xFF, 0xD8, 0xFF, 0xE0, 0x00, 0x00, 0xFF, 0xD9]), None); // length 0
+        assert_eq!(exif_orientation(&[0xFF, 0xD8, 0x12, 0x34]), None); // not a marker
+        for n in 0..64 {
+            let bytes: Vec<u8> = (0..n).map(|i| [0xFF, 0xE1, 0x00, 0x03][i % 4]).collect();
+            let _ = exif_orientation(&bytes); // never panics, always terminates
+        }
+    }
+}
