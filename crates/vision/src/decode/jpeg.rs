@@ -177,6 +177,134 @@ fn exif_orientation(bytes: &[u8]) -> Option<Orientation> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::decode::decode;
+
+    /// Encodes `pixels` (in `pf` layout) with libjpeg-turbo's encoder at quality 100.
+    fn tj_compress(pixels: &[u8], w: i32, h: i32, pf: tj::TJPF, subsamp: tj::TJSAMP, flags: u32) -> Vec<u8> {
+        // SAFETY: test helper; `pixels` holds w × h pixels of `pf`, TurboJPEG allocates the
+        // output, copied out and freed with tjFree.
+        unsafe {
+            let h_ = tj::tjInitCompress();
+            assert!(!h_.is_null());
+            let (mut out, mut size) = (std::ptr::null_mut(), 0);
+            let rc = tj::tjCompress2(h_, pixels.as_ptr(), w, 0, h, pf, &mut out, &mut size, subsamp as c_int, 100, flags as c_int);
+            assert_eq!(rc, 0);
+            let v = std::slice::from_raw_parts(out, size as usize).to_vec();
+            tj::tjFree(out);
+            tj::tjDestroy(h_);
+            v
+        }
+    }
+
+    fn gradient(w: u32, h: u32, channels: u32) -> Vec<u8> {
+        (0..w * h * channels).map(|i| { let (p, c) = (i / channels, i % channels); ((p % w) * 4 + (p / w) * 2 + c * 20) as u8 }).collect()
+    }
+
+    fn max_diff(a: &[u8], b: &[u8]) -> u8 {
+        assert_eq!(a.len(), b.len());
+        a.iter().zip(b).map(|(x, y)| x.abs_diff(*y)).max().unwrap_or(0)
+    }
+
+    #[test]
+    fn baseline_and_progressive_give_the_same_pixels() {
+        // Progressive coding rearranges the same quantised coefficients: identical output.
+        let src = gradient(37, 23, 3);
+        let base = tj_compress(&src, 37, 23, tj::TJPF_TJPF_RGB, tj::TJSAMP_TJSAMP_420, 0);
+        let prog = tj_compress(&src, 37, 23, tj::TJPF_TJPF_RGB, tj::TJSAMP_TJSAMP_420, tj::TJFLAG_PROGRESSIVE);
+        assert_ne!(base, prog);
+        let (a, b) = (decode(&base).unwrap(), decode(&prog).unwrap());
+        assert_eq!(a.dimensions(), (37, 23));
+        assert_eq!(a, b);
+        assert!(max_diff(a.as_raw(), &src) <= 6, "{}", max_diff(a.as_raw(), &src));
+    }
+
+    #[test]
+    fn grey_jpeg_is_replicated() {
+        let src = gradient(16, 9, 1);
+        let out = decode(&tj_compress(&src, 16, 9, tj::TJPF_TJPF_GRAY, tj::TJSAMP_TJSAMP_GRAY, 0)).unwrap();
+        for (p, g) in out.pixels().zip(&src) {
+            assert_eq!(p.0[0], p.0[1]);
+            assert_eq!(p.0[1], p.0[2]);
+            assert!(p.0[0].abs_diff(*g) <= 2, "{} vs {g}", p.0[0]);
+        }
+    }
+
+    #[test]
+    fn cmyk_jpeg_becomes_rgb() {
+        // TurboJPEG writes CMYK input as an Adobe YCCK JPEG: the YCCK → CMYK → RGB path.
+        let src = gradient(16, 16, 4);
+        let out = decode(&tj_compress(&src, 16, 16, tj::TJPF_TJPF_CMYK, tj::TJSAMP_TJSAMP_444, 0)).unwrap();
+        let expect: Vec<u8> = src
+            .chunks_exact(4)
+            .flat_map(|p| (0..3).map(move |c| (f64::from(p[c]) * f64::from(p[3]) / 255.0).round() as u8))
+            .collect();
+        assert!(max_diff(out.as_raw(), &expect) <= 4, "{}", max_diff(out.as_raw(), &expect));
+    }
+
+    /// The last scan (SOS … before EOI) of a progressive JPEG repeated `n` more times.
+    fn with_repeated_last_scan(jpeg: &[u8], n: usize) -> Vec<u8> {
+        let sos = jpeg.windows(2).rposition(|w| w == [0xFF, 0xDA]).unwrap();
+        let eoi = jpeg.len() - 2;
+        assert_eq!(&jpeg[eoi..], &[0xFF, 0xD9]);
+        let mut out = jpeg[..eoi].to_vec();
+        for _ in 0..n {
+            out.extend_from_slice(&jpeg[sos..eoi]);
+        }
+        out.extend_from_slice(&jpeg[eoi..]);
+        out
+    }
+
+    #[test]
+    fn progressive_scan_bomb_is_refused() {
+        let prog = tj_compress(&gradient(8, 8, 3), 8, 8, tj::TJPF_TJPF_RGB, tj::TJSAMP_TJSAMP_444, tj::TJFLAG_PROGRESSIVE);
+        // A few extra scans: a bogus progression is only a warning, the image comes out.
+        assert!(decode(&with_repeated_last_scan(&prog, 3)).is_ok());
+        match decode(&with_repeated_last_scan(&prog, 600)) {
+            Err(DecodeError::Corrupt { reason, .. }) => assert!(reason.contains("500 scans"), "{reason}"),
+            other => panic!("expected a scan-limit error, got {other:?}"),
+        }
+    }
+
+    /// A baseline JPEG with its SOF0 fields patched: sample precision, height, width.
+    fn with_sof(jpeg: &[u8], precision: u8, w: u16, h: u16) -> Vec<u8> {
+        let mut out = jpeg.to_vec();
+        let sof = out.windows(2).position(|m| m == [0xFF, 0xC0]).unwrap();
+        out[sof + 4] = precision;
+        out[sof + 5..sof + 7].copy_from_slice(&h.to_be_bytes());
+        out[sof + 7..sof + 9].copy_from_slice(&w.to_be_bytes());
+        out
+    }
+
+    #[test]
+    fn size_is_checked_from_the_header_and_odd_precision_is_an_error() {
+        let jpeg = tj_compress(&gradient(8, 8, 3), 8, 8, tj::TJPF_TJPF_RGB, tj::TJSAMP_TJSAMP_444, 0);
+        // 60000 × 60000 claimed by an 8×8 file: refused before any pixel buffer exists.
+        match decode(&with_sof(&jpeg, 8, 60000, 60000)) {
+            Err(DecodeError::TooManyPixels { width: 60000, height: 60000, .. }) => {}
+            other => panic!("expected TooManyPixels, got {other:?}"),
+        }
+        let limits = DecodeLimits { max_encoded_bytes: 1 << 20, max_pixels: 63 };
+        assert!(matches!(super::decode(&jpeg, &limits), Err(DecodeError::TooManyPixels { pixels: 64, .. })));
+        // Zero height in SOF: libjpeg refuses it ("Empty JPEG image").
+        assert!(matches!(decode(&with_sof(&jpeg, 8, 8, 0)), Err(DecodeError::Corrupt { .. }) | Err(DecodeError::ZeroSize { .. })));
+        // 12-bit samples: not supported by this libjpeg build — a clear error, not a panic.
+        match decode(&with_sof(&jpeg, 12, 8, 8)) {
+            Err(DecodeError::Corrupt { reason, .. }) => assert!(reason.contains("precision"), "{reason}"),
+            other => panic!("expected an unsupported-precision error, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn corrupt_entropy_data_is_a_warning_not_an_error() {
+        // As in OpenCV: damaged scan data still yields an image (what libjpeg could decode).
+        let src = gradient(64, 48, 3);
+        let mut jpeg = tj_compress(&src, 64, 48, tj::TJPF_TJPF_RGB, tj::TJSAMP_TJSAMP_420, 0);
+        let n = jpeg.len();
+        for b in &mut jpeg[n - 60..n - 10] {
+            *b = 0xFF; // markers where entropy data should be
+        }
+        assert_eq!(decode(&jpeg).unwrap().dimensions(), (64, 48));
+    }
 
     #[test]
     fn cmyk_conversion_is_the_rounded_product() {
