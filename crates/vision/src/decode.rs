@@ -1,7 +1,7 @@
 //! Decoding photos with limits: JPEG, PNG and WebP bytes → an 8-bit RGB image, the EXIF
 //! orientation applied.
 //!
-//! JPEG goes through libjpeg-turbo ([`jpeg`]), for the same pixels as OpenCV and dlib (the
+//! JPEG goes through libjpeg-turbo (`decode/jpeg.rs`), for the same pixels as OpenCV and dlib (the
 //! landmark model was trained and is checked on them); PNG and WebP through the `image`
 //! crate.
 //!

@@ -147,7 +147,8 @@ fn fidelity(sp: &ShapePredictor, dir: &std::path::Path, photos: Vec<&(&str, Vec<
 #[test]
 #[ignore = "needs FACERECON_LIBJPEG_PPM_DIR (PPMs from support/libjpeg_to_ppm.c)"]
 fn decoder_equals_libjpeg_turbo() {
-    let ppm_dir = std::path::PathBuf::from(std::env::var_os("FACERECON_LIBJPEG_PPM_DIR").expect("FACERECON_LIBJPEG_PPM_DIR"));
+    let ppm_dir = std::env::var_os("FACERECON_LIBJPEG_PPM_DIR").expect("FACERECON_LIBJPEG_PPM_DIR");
+    let ppm_dir = std::path::PathBuf::from(ppm_dir);
     let dir = dataset_dir();
     let mut jpegs = Vec::new();
     let mut stack = vec![dir.clone()];
