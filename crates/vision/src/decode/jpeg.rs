@@ -7,6 +7,8 @@
 //! Rust side every call is a plain return code, so nothing unwinds across the boundary.
 //! Warnings (corrupt entropy data, a premature end of file) are not fatal, as in OpenCV:
 //! the image decoded so far is returned (libjpeg fills what it could not decode in grey).
+//! (TurboJPEG 2.1 reports an error that follows a warning in the same file as a warning: such
+//! a file also yields its decoded part, never uninitialised memory — the buffer is zeroed.)
 
 use std::ffi::{CStr, c_int, c_ulong};
 
