@@ -9,6 +9,10 @@
 #     model import-ict --source /ict -o /models/ict-face-light.safetensors
 
 FROM rust:1.95-bookworm AS build
+# libjpeg-turbo's TurboJPEG library: JPEG decoding (facerecon-vision links it via pkg-config).
+RUN apt-get update \
+ && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends libturbojpeg0-dev pkg-config \
+ && rm -rf /var/lib/apt/lists/*
 WORKDIR /src
 COPY . .
 RUN cargo build --release --locked -p facerecon-client \
@@ -17,7 +21,7 @@ RUN cargo build --release --locked -p facerecon-client \
 FROM debian:bookworm-slim
 RUN apt-get update \
  && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
-      mesa-vulkan-drivers libvulkan1 opencv-data libdlib-data ca-certificates \
+      mesa-vulkan-drivers libvulkan1 opencv-data libdlib-data libturbojpeg0 ca-certificates \
  && rm -rf /var/lib/apt/lists/*
 COPY --from=build /src/target/release/facerecon /usr/local/bin/facerecon
 ENV XDG_RUNTIME_DIR=/tmp WGPU_BACKEND=vulkan

@@ -1,12 +1,16 @@
 //! Decoding photos with limits: JPEG, PNG and WebP bytes → an 8-bit RGB image, the EXIF
 //! orientation applied.
 //!
+//! JPEG goes through libjpeg-turbo (`decode/jpeg.rs`), for the same pixels as OpenCV and dlib (the
+//! landmark model was trained and is checked on them); PNG and WebP through the `image`
+//! crate.
+//!
 //! Untrusted bytes are checked in this order, so that nothing large is allocated from a header
 //! value: the encoded size against [`DecodeLimits::max_encoded_bytes`]; the format from the
 //! magic bytes; the width × height read from the header against
 //! [`DecodeLimits::max_pixels`] (a decompression bomb — a tiny file claiming a huge image —
-//! is refused here, before any pixel buffer exists); only then the pixels are decoded, with
-//! `image`'s own allocation limit set as a second fence.
+//! is refused here, before any pixel buffer exists); only then the pixels are decoded (for
+//! PNG and WebP with `image`'s own allocation limit set as a second fence).
 //!
 //! Every pixel layout the decoders produce (8/16-bit, grey, grey + alpha, RGB, RGBA) becomes
 //! `RgbImage`: 16-bit samples are scaled to 8 bits, grey is replicated, alpha is dropped
@@ -15,6 +19,8 @@
 use std::io::Cursor;
 
 use image::{DynamicImage, ImageDecoder, ImageError, ImageFormat, ImageReader, RgbImage};
+
+mod jpeg;
 
 /// Limits applied to every decode. The defaults suit photos sent to a service.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -86,6 +92,9 @@ pub fn decode_with_limits(bytes: &[u8], limits: &DecodeLimits) -> Result<RgbImag
     let name = format_name(format);
     if !matches!(format, ImageFormat::Jpeg | ImageFormat::Png | ImageFormat::WebP) {
         return Err(DecodeError::UnsupportedFormat { format: name });
+    }
+    if format == ImageFormat::Jpeg {
+        return jpeg::decode(bytes, limits);
     }
 
     let mut reader = ImageReader::with_format(Cursor::new(bytes), format);

@@ -149,19 +149,7 @@ pub fn read_dlib_reference(dir: &Path) -> Vec<DlibReference> {
 
 /// Decodes a photo as the product does ([`facerecon_vision::decode`]: RGB, EXIF
 /// orientation applied, greyscale replicated to three channels).
-///
-/// With `FACERECON_LIBJPEG_PPM_DIR` set, JPEG photos are read instead from binary PPM
-/// files decoded by libjpeg-turbo (the decoder of dlib's reference run), laid out like
-/// the data set (`afw/X.ppm` for `afw/X.jpg`); `tests/support/libjpeg_to_ppm.c` makes them.
 pub fn load_rgb(dir: &Path, path: &str) -> image::RgbImage {
-    if let (Some(ppm_dir), true) = (std::env::var_os("FACERECON_LIBJPEG_PPM_DIR"), path.ends_with(".jpg")) {
-        let ppm = std::fs::read(Path::new(&ppm_dir).join(path).with_extension("ppm")).unwrap();
-        let mut nl = 0; let mut off = 0;
-        for (i, &b) in ppm.iter().enumerate() { if b == b'\n' { nl += 1; if nl == 3 { off = i + 1; break; } } }
-        let hdr = std::str::from_utf8(&ppm[..off]).unwrap();
-        let wh: Vec<u32> = hdr.lines().nth(1).unwrap().split(' ').map(|v| v.parse().unwrap()).collect();
-        return image::RgbImage::from_raw(wh[0], wh[1], ppm[off..].to_vec()).unwrap();
-    }
     let bytes = std::fs::read(dir.join(path)).unwrap_or_else(|e| panic!("{path}: {e}"));
     facerecon_vision::decode::decode(&bytes).unwrap_or_else(|e| panic!("{path}: {e}"))
 }

@@ -1,9 +1,10 @@
 /* Decodes a JPEG with libjpeg(-turbo) to a binary PPM, as OpenCV's imread does (RGB,
- * default settings), for the dlib port-fidelity test with identical pixels:
- *   gcc -O2 libjpeg_to_ppm.c -o libjpeg_to_ppm -ljpeg
+ * default settings), to check the product decoder against libjpeg-turbo pixel for pixel:
+ *   gcc -O2 libjpeg_to_ppm.c -o /tmp/libjpeg_to_ppm -ljpeg
  *   cd $FACERECON_SHARED/data/faces-300w && for f in $(find . -name '*.jpg'); do
- *     mkdir -p /tmp/ppm/$(dirname $f); ./libjpeg_to_ppm $f /tmp/ppm/${f%.jpg}.ppm; done
- *   FACERECON_LIBJPEG_PPM_DIR=/tmp/ppm cargo test -p facerecon-vision --test dlib_fidelity
+ *     mkdir -p /tmp/ppm/$(dirname $f); /tmp/libjpeg_to_ppm $f /tmp/ppm/${f%.jpg}.ppm; done
+ *   FACERECON_LIBJPEG_PPM_DIR=/tmp/ppm cargo test -p facerecon-vision --release \
+ *     --test dlib_fidelity -- --ignored decoder_equals --nocapture
  */
 #include <stdio.h>
 #include <stdlib.h>
