@@ -15,6 +15,7 @@
 //! an unweighted mean.
 
 pub mod box_convention;
+pub mod box_from_landmarks;
 pub mod dlib_format;
 pub mod shape_predictor;
 
