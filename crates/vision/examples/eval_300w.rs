@@ -21,8 +21,9 @@
 //!
 //! `FACERECON_EVAL_DETECTIONS=FILE` keeps the detections in FILE (JSON, written when FILE
 //! does not exist, read when it does), so that landmark-side changes can be re-evaluated
-//! without the slow detection phase. Keep FILE outside the repository (it is made from the
-//! data set).
+//! without the slow detection phase. `FACERECON_EVAL_PER_PHOTO=FILE.csv` writes the
+//! per-photo figures. Keep such files outside the repository (they are made from the data
+//! set).
 //!
 //! Figures per folder, on all 700, on `afw` + `testset` folders (not used for the
 //! calibration fit) and on the `trainset` folders (used for it).
@@ -167,7 +168,7 @@ fn main() {
             println!("  {s:?} ({} pairs): {m:?}", v.len());
             refit.by_source.insert(s.clone(), m);
         } else {
-            println!("  {s:?}: {} pairs, uses the fallback", v.len());
+            println!("  {s:?}: {} pairs, uses {:?}", v.len(), s.strip_suffix("-mirrored").map_or("the fallback".to_string(), |b| format!("{b}'s map mirrored")));
         }
     }
     // Phase 2: landmarks, through the front end.
@@ -267,6 +268,26 @@ fn main() {
         cells.extend((0..2).map(|k| mean(&|r| r.nme_uncalibrated_passes.map(|v| v[k]))));
         cells.extend((0..2).map(|k| mean(&|r| r.nme_hog_passes.map(|v| v[k]))));
         println!("| {name} | {} |", cells.join(" | "));
+    }
+
+    if let Some(p) = std::env::var_os("FACERECON_EVAL_PER_PHOTO") {
+        let mut csv = String::from("path,source,iou,yaw,nme_1,nme_2,nme_3,nme_4,raw_1,raw_3,hog_1,hog_2,dlib_ref\n");
+        let f = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.5}"));
+        for r in &results {
+            let n = r.nme_passes.map(|v| v.map(Some)).unwrap_or([None; 4]);
+            let u = r.nme_uncalibrated_passes.map(|v| v.map(Some)).unwrap_or([None; 2]);
+            let h = r.nme_hog_passes.map(|v| v.map(Some)).unwrap_or([None; 2]);
+            csv += &format!(
+                "{},{},{},{:.3},{},{},{},{},{},{},{},{},{}\n",
+                r.path,
+                r.source.as_deref().unwrap_or(""),
+                r.iou.map_or(String::new(), |v| format!("{v:.3}")),
+                r.yaw,
+                f(n[0]), f(n[1]), f(n[2]), f(n[3]), f(u[0]), f(u[1]), f(h[0]), f(h[1]),
+                f(r.nme_dlib_ref)
+            );
+        }
+        std::fs::write(p, csv).expect("writing the per-photo file");
     }
 
     println!();
