@@ -63,7 +63,7 @@ struct PhotoResult {
     source: Option<String>,
     /// IoU of the detection with the annotated landmark box.
     iou: Option<f32>,
-    /// IoU of the last pass's input box (4 passes) with dlib's HOG box, when dlib found the face.
+    /// IoU of the last pass's input box (3 passes) with dlib's HOG box, when dlib found the face.
     final_box_iou_hog: Option<f32>,
     yaw: f32,
 }
@@ -193,7 +193,7 @@ fn main() {
         let hog_det = refs.get(&p.path).map(|r| Detection { face_box: r.face_box(), score: 1.0, source: "dlib-hog".into() });
         let nme_hog_passes = hog_det.as_ref().map(|d| [0, 1].map(|k| through(&hog[k], d).0));
         let final_box_iou_hog = match (best, &hog_det) {
-            (Some(d), Some(h)) => Some(through(&fronts[3], d).1.iou(&h.face_box)),
+            (Some(d), Some(h)) => Some(through(&fronts[2], d).1.iou(&h.face_box)),
             _ => None,
         };
         let tbox = faces300w::landmark_box(&truth);
@@ -291,19 +291,20 @@ fn main() {
     }
 
     println!();
-    println!("Worst 15 afw photos (2 passes):");
-    println!("| photo | NME 1 pass | NME 2 passes | source | IoU detection / annotated box | final box IoU with dlib's HOG box | yaw | dlib on its HOG box |");
-    println!("| --- | ---: | ---: | --- | ---: | ---: | ---: | ---: |");
+    println!("Worst 15 afw photos (3 passes, as `facerecon detect`):");
+    println!("| photo | NME 1 pass | NME 2 passes | NME 3 passes | source | IoU detection / annotated box | final box IoU with dlib's HOG box | yaw | dlib on its HOG box |");
+    println!("| --- | ---: | ---: | ---: | --- | ---: | ---: | ---: | ---: |");
     let mut afw: Vec<&PhotoResult> = results.iter().filter(|r| faces300w::folder_of(&r.path) == "afw" && r.nme_passes.is_some()).collect();
-    afw.sort_by(|a, b| b.nme_passes.unwrap()[1].total_cmp(&a.nme_passes.unwrap()[1]));
+    afw.sort_by(|a, b| b.nme_passes.unwrap()[2].total_cmp(&a.nme_passes.unwrap()[2]));
     let opt = |v: Option<f64>, scale: f64| v.map_or("–".to_string(), |v| format!("{:.2}", scale * v));
     for r in afw.iter().take(15) {
         let n = r.nme_passes.unwrap();
         println!(
-            "| {} | {:.2} % | {:.2} % | {} | {:.2} | {} | {:+.2} | {} |",
+            "| {} | {:.2} % | {:.2} % | {:.2} % | {} | {:.2} | {} | {:+.2} | {} |",
             r.path,
             100.0 * n[0],
             100.0 * n[1],
+            100.0 * n[2],
             r.source.as_deref().unwrap_or("–"),
             r.iou.unwrap_or(0.0),
             opt(r.final_box_iou_hog.map(f64::from), 1.0),

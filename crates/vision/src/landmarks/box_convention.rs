@@ -10,8 +10,10 @@
 //! ```
 //!
 //! fitted by least squares on matched pairs (see `examples/fit_box_calibration.rs`).
-//! On faces-300w it brings the pipeline's NME from 3.42 % to 2.83 % (all 700 photos; 3.66 %
-//! → 3.23 % on the folders not used for the fit): `docs/bench/vision-landmarks.md`.
+//! On faces-300w it brings the pipeline's one-pass NME from 3.42 % to 2.17 % (all 700
+//! photos; 3.66 % → 2.28 % on the folders not used for the fit); the front end's refinement
+//! passes ([`super::box_from_landmarks`]) then take it to 1.95 % / 2.02 %:
+//! `docs/bench/vision-landmarks.md`.
 
 use std::collections::BTreeMap;
 
