@@ -93,11 +93,9 @@ fn yaw(pts: &[[f32; 2]]) -> f32 {
 
 /// Phase 1, or its saved result.
 fn detections_cached(path: Option<std::path::PathBuf>, run: impl FnOnce() -> Vec<(usize, Option<Detection>)>) -> Vec<(usize, Option<Detection>)> {
-    if let Some(p) = &path {
-        if let Ok(text) = std::fs::read_to_string(p) {
-            eprintln!("detections read from {}", p.display());
-            return serde_json::from_str(&text).expect("detections file");
-        }
+    if let Some((p, text)) = path.as_ref().and_then(|p| Some((p, std::fs::read_to_string(p).ok()?))) {
+        eprintln!("detections read from {}", p.display());
+        return serde_json::from_str(&text).expect("detections file");
     }
     let d = run();
     if let Some(p) = &path {
