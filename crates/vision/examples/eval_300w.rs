@@ -231,7 +231,7 @@ fn main() {
         ("trainset (calibration fit)", Box::new(|p: &str| faces300w::is_trainset(p))),
         ("all 700", Box::new(|_: &str| true)),
     ];
-    println!("| photos | n | detection rate | NME pipeline (calibration in code) | NME pipeline (refit) | NME without calibration | dlib on its HOG boxes (ref.) | our port on dlib's HOG boxes |");
+    println!("| photos | n | detection rate | NME 1 pass (calibration in code) | NME 1 pass (refit calibration) | NME 1 pass without calibration | dlib on its HOG boxes (ref.) | our port on dlib's HOG boxes |");
     println!("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |");
     for (name, f) in &groups {
         let rs: Vec<&PhotoResult> = results.iter().filter(|r| f(&r.path)).collect();
