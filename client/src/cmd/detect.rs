@@ -9,6 +9,7 @@ use anyhow::Context;
 use facerecon_vision::crop::Bucket;
 use facerecon_vision::decode::DecodeLimits;
 use facerecon_vision::detect::ViolaJones;
+use facerecon_vision::landmarks::box_from_landmarks::BoxFromLandmarks;
 use facerecon_vision::landmarks::{BoxCalibration, ShapePredictor};
 use facerecon_vision::pipeline::{Face, FrontEnd};
 use image::{Rgb, RgbImage};
@@ -53,7 +54,8 @@ pub fn run(args: DetectArgs) -> anyhow::Result<ExitCode> {
     let predictor = ShapePredictor::load(&args.landmark_model)
         .with_context(|| format!("loading the landmark model {}", args.landmark_model.display()))?;
     let front = FrontEnd::new(Box::new(detector), Box::new(predictor))
-        .with_calibration(BoxCalibration::viola_jones_to_dlib());
+        .with_calibration(BoxCalibration::viola_jones_to_dlib())
+        .with_refinement(BoxFromLandmarks::dlib_68(), 2);
     let limits = DecodeLimits::default();
     let mut failed = 0;
     for (i, path) in args.images.iter().enumerate() {

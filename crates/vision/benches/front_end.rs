@@ -1,5 +1,7 @@
-//! Front-end speed (DESIGN §9): landmarks alone per face (goal < 2 ms) and detection +
-//! landmarks per 640×480 photo (goal < 20 ms, 2 cores). The photo is made at bench time
+//! Front-end speed (DESIGN §9): landmarks alone per face (goal < 2 ms), one face through
+//! `FrontEnd::face` with 0 and 2 refinement passes (what a pass costs), and detection +
+//! landmarks (2 refinement passes, as `facerecon detect`) per 640×480 photo (goal < 20 ms,
+//! 2 cores). The photo is made at bench time
 //! from a faces-300w photo (centre-cropped to 4:3, resized); nothing derived is stored.
 //!
 //!     cargo bench -p facerecon-vision --bench front_end
@@ -9,6 +11,8 @@ mod faces300w;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use facerecon_vision::detect::ViolaJones;
+use facerecon_vision::face::{Detection, FaceDetector, ModelRunError};
+use facerecon_vision::landmarks::box_from_landmarks::BoxFromLandmarks;
 use facerecon_vision::landmarks::{BoxCalibration, ShapePredictor};
 use facerecon_vision::pipeline::FrontEnd;
 use std::hint::black_box;
@@ -61,8 +65,26 @@ fn benches(c: &mut Criterion) {
         black_box(sp.predict(black_box(&img), &b));
     }));
 
+    // One face through FrontEnd::face (landmarks + crop), without and with refinement.
+    struct NoDetector;
+    impl FaceDetector for NoDetector {
+        fn detect(&self, _: &image::RgbImage) -> Result<Vec<Detection>, ModelRunError> {
+            Ok(Vec::new())
+        }
+    }
+    let det = Detection { face_box: b, score: 1.0, source: "dlib-hog".into() };
+    for passes in [0, 2] {
+        let fe = FrontEnd::new(Box::new(NoDetector), Box::new(sp.clone())).with_refinement(BoxFromLandmarks::dlib_68(), passes);
+        let name = format!("face_with_{passes}_refinement_passes");
+        c.bench_function(&name, |bench| bench.iter(|| black_box(fe.face(black_box(&img), det.clone()).unwrap())));
+        eprintln!("{name}: {:.3} ms CPU per call", 1e3 * cpu_per_call(300, || {
+            black_box(fe.face(black_box(&img), det.clone()).unwrap());
+        }));
+    }
+
     let front = FrontEnd::new(Box::new(ViolaJones::load_default().expect("cascades")), Box::new(sp.clone()))
-        .with_calibration(BoxCalibration::viola_jones_to_dlib());
+        .with_calibration(BoxCalibration::viola_jones_to_dlib())
+        .with_refinement(BoxFromLandmarks::dlib_68(), 2);
     let small = photo_640x480();
     let faces = front.run(&small).unwrap();
     eprintln!("640×480 photo: {} face(s)", faces.len());

@@ -61,7 +61,8 @@ fn main() {
         if v.len() >= MIN_PAIRS {
             println!("// {s:?} ({} pairs):\n{}", v.len(), rust(&BoxMap::fit(v).unwrap()));
         } else {
-            println!("// {s:?}: only {} pairs, uses the fallback", v.len());
+            // (BoxCalibration::map_for: a `-mirrored` source uses its base's map mirrored.)
+            println!("// {s:?}: only {} pairs, uses its base's map mirrored or the fallback", v.len());
         }
     }
     // Mean IoU with the HOG box before / after the fitted map (on the fitting pairs).

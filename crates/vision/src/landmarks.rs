@@ -1,7 +1,8 @@
 //! 68-point facial landmarks: a port of dlib's shape predictor (an ensemble of regression
 //! trees, Kazemi & Sullivan 2014 — a cascaded regressor like SDM) that reads dlib's model
-//! files, and the mapping of detector boxes onto the box convention the model was
-//! trained with.
+//! files, the mapping of detector boxes onto the box convention the model was trained with
+//! ([`box_convention`]), and the box that convention gives for a face's landmarks
+//! ([`box_from_landmarks`], for the front end's refinement passes).
 //!
 //! **Licence of the default model.** dlib's `shape_predictor_68_face_landmarks.dat`
 //! (Debian `libdlib-data`) was trained on the iBUG 300-W data set, whose licence excludes
@@ -15,6 +16,7 @@
 //! an unweighted mean.
 
 pub mod box_convention;
+pub mod box_from_landmarks;
 pub mod dlib_format;
 pub mod shape_predictor;
 

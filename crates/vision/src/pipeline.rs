@@ -1,6 +1,7 @@
 //! The whole front end (DESIGN §3): decoded image → detect → map each box onto the
-//! landmark model's box convention → 68 landmarks → square crop + resolution bucket per
-//! face. Faces whose crop would be smaller than 32 px are reported (box, landmarks,
+//! landmark model's box convention → 68 landmarks → optional further passes, each on the
+//! box the model's convention gives for the previous pass's landmarks → square crop +
+//! resolution bucket per face. Faces whose crop would be smaller than 32 px are reported (box, landmarks,
 //! bucket `TooSmall`) but not cropped. Detector and landmarker are pluggable.
 //!
 //! The crop is taken around the tight box of the 68 landmarks (grown by 30 %, squared, as
@@ -13,14 +14,19 @@ use crate::crop::{self, Bucket, Crop};
 use crate::decode::{self, DecodeError, DecodeLimits};
 use crate::face::{Detection, FaceBox, FaceDetector, LandmarkPredictor, Landmarks, ModelRunError};
 use crate::landmarks::BoxCalibration;
+use crate::landmarks::box_from_landmarks::BoxFromLandmarks;
 
 /// One face found by the front end.
 #[derive(Clone, Debug)]
 pub struct Face {
     /// The detector's output, unchanged.
     pub detection: Detection,
-    /// The box given to the landmark predictor (the detection box after calibration).
+    /// The box given to the landmark predictor in its last pass: the detection box after
+    /// calibration, or after refinement passes the box computed from the previous pass's
+    /// landmarks.
     pub landmark_input_box: FaceBox,
+    /// Landmark passes run (1 + refinement passes actually made).
+    pub landmark_passes: usize,
     /// 68 points, iBUG order, image pixels.
     pub landmarks: Landmarks,
     /// Tight box of the landmarks: what the crop is made from.
@@ -46,6 +52,7 @@ pub struct FrontEnd {
     detector: Box<dyn FaceDetector>,
     predictor: Box<dyn LandmarkPredictor>,
     calibration: BoxCalibration,
+    refinement: Option<Refinement>,
     /// Upper bound on faces processed per image (largest boxes first).
     pub max_faces: usize,
 }
@@ -54,7 +61,7 @@ impl FrontEnd {
     /// A front end from any detector and predictor; boxes are passed on unchanged until
     /// [`Self::with_calibration`] says otherwise.
     pub fn new(detector: Box<dyn FaceDetector>, predictor: Box<dyn LandmarkPredictor>) -> Self {
-        FrontEnd { detector, predictor, calibration: BoxCalibration::identity(), max_faces: 64 }
+        FrontEnd { detector, predictor, calibration: BoxCalibration::identity(), refinement: None, max_faces: 64 }
     }
 
     pub fn with_calibration(mut self, calibration: BoxCalibration) -> Self {
@@ -64,6 +71,19 @@ impl FrontEnd {
 
     pub fn calibration(&self) -> &BoxCalibration {
         &self.calibration
+    }
+
+    /// After the first landmark pass, runs `passes` more, each on the box `map` gives for
+    /// the previous pass's landmarks (`map` must describe the predictor's box convention,
+    /// e.g. [`BoxFromLandmarks::dlib_68`] for dlib's 68-point model). `passes = 0` turns
+    /// refinement off.
+    pub fn with_refinement(mut self, map: BoxFromLandmarks, passes: usize) -> Self {
+        self.refinement = (passes > 0).then_some(Refinement { map, passes });
+        self
+    }
+
+    pub fn refinement(&self) -> Option<&Refinement> {
+        self.refinement.as_ref()
     }
 
     /// Decodes (with limits) and runs.
@@ -87,15 +107,38 @@ impl FrontEnd {
 
     /// Landmarks, crop and bucket for one detection.
     pub fn face(&self, image: &RgbImage, detection: Detection) -> Result<Face, FrontEndError> {
-        let landmark_input_box = self.calibration.apply(&detection.source, &detection.face_box);
-        let calibrated = Detection { face_box: landmark_input_box, ..detection.clone() };
-        let landmarks = self.predictor.predict(image, &calibrated).map_err(FrontEndError::Landmarks)?;
+        let mut landmark_input_box = self.calibration.apply(&detection.source, &detection.face_box);
+        let predict = |face_box: FaceBox| {
+            let input = Detection { face_box, ..detection.clone() };
+            self.predictor.predict(image, &input).map_err(FrontEndError::Landmarks)
+        };
+        let mut landmarks = predict(landmark_input_box)?;
+        let mut landmark_passes = 1;
+        if let Some(r) = &self.refinement {
+            for _ in 0..r.passes {
+                // Points the map cannot use (e.g. a predictor giving fewer points) end the
+                // refinement with the last landmarks.
+                let Some(next) = r.map.apply(&landmarks.points) else { break };
+                landmarks = predict(next)?;
+                landmark_input_box = next;
+                landmark_passes += 1;
+            }
+        }
         let landmark_box = bounding_box(&landmarks.points).unwrap_or(landmark_input_box);
         let (_, _, side) = crop::crop_square(&landmark_box);
         let bucket = Bucket::from_side(side);
         let crop = (bucket != Bucket::TooSmall).then(|| crop::crop_face(image, &landmark_box));
-        Ok(Face { detection, landmark_input_box, landmarks, landmark_box, bucket, crop })
+        Ok(Face { detection, landmark_input_box, landmark_passes, landmarks, landmark_box, bucket, crop })
     }
+}
+
+/// The landmark passes after the first one.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Refinement {
+    /// Landmarks → the predictor's input box.
+    pub map: BoxFromLandmarks,
+    /// Passes after the first (≥ 1).
+    pub passes: usize,
 }
 
 /// Tight box of a set of points (`None` when empty or not finite).
@@ -174,6 +217,38 @@ mod tests {
         assert_eq!(faces[1].bucket, Bucket::TooSmall);
         assert!(faces[1].crop.is_none());
         assert_eq!(faces[1].detection.face_box.x0, 10.0);
+    }
+
+    /// A predictor giving fewer points than the refinement map reads.
+    struct FewPoints;
+    impl LandmarkPredictor for FewPoints {
+        fn predict(&self, _: &RgbImage, d: &Detection) -> Result<Landmarks, ModelRunError> {
+            Ok(Landmarks { confidence: vec![1.0; 5], points: vec![d.face_box.center(); 5] })
+        }
+    }
+
+    #[test]
+    fn refinement_passes_predict_again_on_the_mapped_box() {
+        let dets = vec![det(100.0, 60.0, 300.0, 260.0, "a")];
+        // The corners predictor puts the reference points on the box's corners: a map
+        // halving the side and moving the centre 10 px right per pass.
+        let halve = BoxFromLandmarks { cx: [0.0, 0.0, 10.0], cy: [0.0; 3], side: [0.5, 0.0, 0.0] };
+        let fe = FrontEnd::new(Box::new(Fixed(dets.clone())), Box::new(Corners)).with_refinement(halve, 2);
+        let f = &fe.run(&RgbImage::new(400, 300)).unwrap()[0];
+        assert_eq!(f.landmark_passes, 3);
+        // centre (200, 160) → (210, 160) side 100 → (220, 160) side 50
+        assert_eq!(f.landmark_input_box, FaceBox { x0: 195.0, y0: 135.0, x1: 245.0, y1: 185.0 });
+        assert_eq!(f.landmark_box, f.landmark_input_box);
+        assert_eq!(f.detection.face_box, dets[0].face_box);
+        // 0 passes: off.
+        let fe = FrontEnd::new(Box::new(Fixed(dets.clone())), Box::new(Corners)).with_refinement(halve, 0);
+        assert!(fe.refinement().is_none());
+        assert_eq!(fe.run(&RgbImage::new(400, 300)).unwrap()[0].landmark_passes, 1);
+        // Points the map cannot read: the first pass's landmarks are kept.
+        let fe = FrontEnd::new(Box::new(Fixed(dets)), Box::new(FewPoints)).with_refinement(halve, 2);
+        let f = &fe.run(&RgbImage::new(400, 300)).unwrap()[0];
+        assert_eq!((f.landmark_passes, f.landmarks.points.len()), (1, 5));
+        assert_eq!(f.landmark_input_box, FaceBox { x0: 100.0, y0: 60.0, x1: 300.0, y1: 260.0 });
     }
 
     #[test]

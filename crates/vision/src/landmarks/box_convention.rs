@@ -10,8 +10,10 @@
 //! ```
 //!
 //! fitted by least squares on matched pairs (see `examples/fit_box_calibration.rs`).
-//! On faces-300w it brings the pipeline's NME from 3.42 % to 2.83 % (all 700 photos; 3.66 %
-//! → 3.23 % on the folders not used for the fit): `docs/bench/vision-landmarks.md`.
+//! On faces-300w it brings the pipeline's one-pass NME from 3.42 % to 2.17 % (all 700
+//! photos; 3.66 % → 2.28 % on the folders not used for the fit); the front end's refinement
+//! passes ([`super::box_from_landmarks`]) then take it to 1.95 % / 2.02 %:
+//! `docs/bench/vision-landmarks.md`.
 
 use std::collections::BTreeMap;
 
@@ -94,8 +96,16 @@ impl BoxCalibration {
         BoxCalibration { by_source: BTreeMap::new(), fallback: BoxMap::IDENTITY }
     }
 
-    pub fn map_for(&self, source: &str) -> &BoxMap {
-        self.by_source.get(source).unwrap_or(&self.fallback)
+    /// The map for a source: its own; else, for `NAME-mirrored` (a cascade run mirrored,
+    /// [`crate::detect`]), `NAME`'s map mirrored; else the fallback.
+    pub fn map_for(&self, source: &str) -> BoxMap {
+        if let Some(m) = self.by_source.get(source) {
+            return *m;
+        }
+        match source.strip_suffix("-mirrored").and_then(|base| self.by_source.get(base)) {
+            Some(m) => m.mirrored(),
+            None => self.fallback,
+        }
     }
 
     pub fn apply(&self, source: &str, b: &FaceBox) -> FaceBox {
@@ -119,7 +129,8 @@ mod default_coefficients {
     /// overlaps the annotated landmark box (IoU > 0.3) paired with dlib's HOG box for that
     /// photo from `dlib_reference.csv`; 362 pairs; least squares per detector source with
     /// ≥ 10 pairs (haar-frontal 238, lbp-frontal 97, haar-profile 20), the fit on all pairs
-    /// for the rest (haar-profile-mirrored had 7). Detector: product cascades, smallest face
+    /// for the rest (haar-profile-mirrored had 7; it now uses haar-profile's map mirrored,
+    /// see [`BoxCalibration::map_for`]). Detector: product cascades, smallest face
     /// 10 % of the shorter side.
     pub fn viola_jones_to_dlib() -> BoxCalibration {
         let fallback = BoxMap {
@@ -188,7 +199,12 @@ mod tests {
         let m = cal.apply("haar-frontal", &b);
         assert!(m.width() < b.width() && m.width() > 0.8 * b.width(), "{m:?}");
         assert!(m.center()[1] > b.center()[1]);
-        assert_eq!(cal.map_for("unknown"), &cal.fallback);
+        assert_eq!(cal.map_for("unknown"), cal.fallback);
+        // A mirrored cascade without a map of its own: its base's map, mirrored.
+        let profile = cal.map_for("haar-profile");
+        assert_eq!(cal.map_for("haar-profile-mirrored"), profile.mirrored());
+        assert_ne!(profile.ax, 0.0);
+        assert_eq!(cal.map_for("unknown-mirrored"), cal.fallback);
     }
 
     #[test]
