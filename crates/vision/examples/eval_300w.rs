@@ -54,8 +54,13 @@ fn main() {
     let fraction: f32 = std::env::var("MIN_FACE_FRACTION").ok().and_then(|v| v.parse().ok()).unwrap_or(0.1);
     let mut params = detector.params().clone();
     params.min_size_fraction = fraction;
+    // DETECT_C2F=f: coarse-to-fine stage fraction (`off`: scan every window, the detector
+    // before docs/decisions/0401-detector-speed.md).
+    if let Ok(v) = std::env::var("DETECT_C2F") {
+        params.coarse_to_fine = if v == "off" { None } else { Some(v.parse().expect("DETECT_C2F: a number or off")) };
+    }
     detector.set_params(params).expect("detector parameters");
-    println!("detector: product cascades, min_size_fraction {fraction}");
+    println!("detector: product cascades, {:?}", detector.params());
     let t = Instant::now();
     let sp = ShapePredictor::load_default().expect("dlib model");
     eprintln!("dlib model loaded in {:.3} s", t.elapsed().as_secs_f64());
@@ -125,6 +130,15 @@ fn main() {
         })
     });
     eprintln!("{} photos in {:.1} s", results.len(), t.elapsed().as_secs_f64());
+    // NME_DUMP=file: per-photo pipeline NME (calibration in code), for paired comparisons
+    // of two detector settings.
+    if let Some(path) = std::env::var_os("NME_DUMP") {
+        let lines: String = results
+            .iter()
+            .map(|r| format!("{},{}\n", r.path, r.nme_pipeline.map_or(String::new(), |v| v.to_string())))
+            .collect();
+        std::fs::write(&path, lines).expect("NME_DUMP file");
+    }
 
     let groups: Vec<(&str, Box<dyn Fn(&str) -> bool>)> = vec![
         ("afw", Box::new(|p: &str| faces300w::folder_of(p) == "afw")),

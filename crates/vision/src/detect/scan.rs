@@ -444,7 +444,7 @@ pub fn scan_rows(
 /// `step` level pixels), but evaluated in two passes. Pass 1 evaluates the windows on a
 /// grid of twice the step; a window that passes at least `min_stages` stages (or is
 /// accepted) marks the regular-grid windows within two steps of it, and pass 2 evaluates
-/// only the marked windows. A face makes a cluster of windows that pass many stages, so
+/// only the marked windows, an accepted one marking its own neighbourhood in turn. A face makes a cluster of windows that pass many stages, so
 /// its hits are found for about a quarter of the work on the background (which seldom
 /// passes `min_stages`). Without OpenCV's skip after a first-stage rejection: the coarse
 /// grid does that job.
@@ -492,15 +492,35 @@ pub fn scan_rows_coarse_to_fine(
     };
     let cols = nx.div_ceil(s);
     let band_rows = (y1 - y0).div_ceil(s);
-    let mut marked = vec![false; cols * band_rows];
+    // Per regular-grid window of the band: 0 not marked, 1 marked (queued), 2 evaluated.
+    let mut state = vec![0u8; cols * band_rows];
+    let mut queue: Vec<usize> = Vec::new();
+    let mark_around = |state: &mut [u8], queue: &mut Vec<usize>, x: usize, y: usize| {
+        let ya = y.saturating_sub(reach).max(y0).div_ceil(s) * s;
+        let yb = (y + reach + 1).min(y1);
+        let xa = x.saturating_sub(reach).div_ceil(s) * s;
+        let xb = (x + reach + 1).min(nx);
+        for yy in (ya..yb).step_by(s) {
+            for xx in (xa..xb).step_by(s) {
+                let cell = (yy - y0) / s * cols + xx / s;
+                if state[cell] == 0 {
+                    state[cell] = 1;
+                    queue.push(cell);
+                }
+            }
+        }
+    };
     let mut y = y0.saturating_sub(reach).div_ceil(cs) * cs;
     while y < (y1 + reach).min(ny) {
-        let inside = y >= y0;
+        let inside = y >= y0 && y < y1;
         let mut x = 0;
         while x < nx {
+            if inside {
+                state[(y - y0) / s * cols + x / s] = 2;
+            }
             let survives = match c.eval(ii, y * ii.stride + x) {
                 Outcome::Accepted(margin) => {
-                    if inside && y < y1 {
+                    if inside {
                         out.push(hit(x, y, margin));
                     }
                     true
@@ -509,32 +529,24 @@ pub fn scan_rows_coarse_to_fine(
                 Outcome::Flat => false,
             };
             if survives {
-                let ya = y.saturating_sub(reach).max(y0).div_ceil(s) * s;
-                let yb = (y + reach + 1).min(y1);
-                let xa = x.saturating_sub(reach).div_ceil(s) * s;
-                let xb = (x + reach + 1).min(nx);
-                for yy in (ya..yb).step_by(s) {
-                    let row = &mut marked[(yy - y0) / s * cols..][..cols];
-                    for xx in (xa..xb).step_by(s) {
-                        row[xx / s] = true;
-                    }
-                }
+                mark_around(&mut state, &mut queue, x, y);
             }
             x += cs;
         }
         y += cs;
     }
-    for r in 0..band_rows {
-        let y = y0 + r * s;
-        let coarse_row = y % cs == 0;
-        for (col, _) in marked[r * cols..(r + 1) * cols].iter().enumerate().filter(|(_, m)| **m) {
-            let x = col * s;
-            if coarse_row && x % cs == 0 {
-                continue; // evaluated in pass 1
-            }
-            if let Outcome::Accepted(margin) = c.eval(ii, y * ii.stride + x) {
-                out.push(hit(x, y, margin));
-            }
+    // Pass 2: the marked windows; an accepted one marks its own neighbourhood too, so a
+    // face's whole cluster of hits is found (its grouped box then averages the same hits as
+    // a full scan would).
+    while let Some(cell) = queue.pop() {
+        if state[cell] == 2 {
+            continue; // a coarse window, evaluated in pass 1
+        }
+        state[cell] = 2;
+        let (x, y) = (cell % cols * s, y0 + cell / cols * s);
+        if let Outcome::Accepted(margin) = c.eval(ii, y * ii.stride + x) {
+            out.push(hit(x, y, margin));
+            mark_around(&mut state, &mut queue, x, y);
         }
     }
 }
