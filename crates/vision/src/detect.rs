@@ -1,9 +1,10 @@
 //! Viola–Jones face detection (thesis §1.1.1) on OpenCV's cascade files.
 //!
 //! This module owns the built-in detector: [`ViolaJones`] runs boosted cascades of Haar or
-//! LBP features over a grey image pyramid, exactly as OpenCV's
-//! `CascadeClassifier::detectMultiScale` does (same pyramid sizes, window steps, variance
-//! normalisation, early rejection and `groupRectangles`), for several cascades at once —
+//! LBP features over a grey image pyramid as OpenCV's `CascadeClassifier::detectMultiScale`
+//! does (same pyramid sizes, window steps, variance normalisation, early rejection and
+//! `groupRectangles`; by default the windows are visited coarse to fine, which skips most
+//! of the background — docs/decisions/0401-detector-speed.md), for several cascades at once —
 //! by default a frontal Haar cascade, a frontal LBP cascade, a profile cascade and the same
 //! profile cascade mirrored (which finds faces turned the other way without flipping the
 //! image) — and merges their faces by non-maximum suppression.

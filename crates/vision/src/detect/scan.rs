@@ -2,7 +2,9 @@
 //! does: Haar windows normalised by the standard deviation of the window shrunk by one pixel
 //! on each side (windows with σ ≤ 10 grey levels are rejected outright, as in OpenCV),
 //! LBP codes compared against the centre block, stage sums against stage thresholds,
-//! the first failing stage rejecting the window.
+//! the first failing stage rejecting the window; and the two ways of visiting a level's
+//! windows: every one ([`scan_rows`], OpenCV's) or coarse to fine
+//! ([`scan_rows_coarse_to_fine`], the default).
 
 use super::cascade::{Cascade, Feature, FeatureType};
 use super::integral::Integral;
