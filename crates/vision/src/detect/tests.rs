@@ -263,6 +263,10 @@ fn bad_params_are_refused() {
     let mut det = ViolaJones::load_default().unwrap();
     assert!(det.set_params(DetectorParams { scale_factor: 1.0, ..Default::default() }).is_err());
     assert!(det.set_params(DetectorParams { min_size_fraction: 2.0, ..Default::default() }).is_err());
+    assert!(det.set_params(DetectorParams { fixed_step: Some(0), ..Default::default() }).is_err());
+    assert!(det.set_params(DetectorParams { coarse_to_fine: Some(1.5), ..Default::default() }).is_err());
+    assert!(det.set_params(DetectorParams { fixed_step: Some(2), coarse_to_fine: Some(0.3), ..Default::default() }).is_ok());
+    assert_eq!(DetectorParams::opencv().coarse_to_fine, None);
     assert_eq!(DetectorParams::opencv().min_size_fraction, 0.0);
     assert!(det.set_params(DetectorParams::opencv()).is_ok());
 }
@@ -374,4 +378,21 @@ fn coarse_to_fine_scan_matches_the_full_grid() {
         total += full.len();
     }
     assert!(2 * found >= total, "coarse to fine found {found} of {total} hits");
+}
+
+#[test]
+fn window_step_follows_opencvs_rule_or_the_fixed_step() {
+    let opencv = DetectorParams::opencv();
+    assert_eq!(opencv.window_step(1.0, 1), 2);
+    assert_eq!(opencv.window_step(1.99, 1), 2);
+    assert_eq!(opencv.window_step(2.0, 1), 1);
+    // OpenCV's rule looks at the source scale even when the pyramid was prefiltered by 2…
+    assert_eq!(opencv.window_step(2.5, 2), 1);
+    // …the product's at the scale relative to the prefiltered image.
+    let product = DetectorParams::default();
+    assert_eq!(product.window_step(2.5, 2), 2);
+    assert_eq!(product.window_step(4.0, 2), 1);
+    let fixed = DetectorParams { fixed_step: Some(3), ..Default::default() };
+    assert_eq!(fixed.window_step(1.0, 1), 3);
+    assert_eq!(fixed.window_step(9.0, 2), 3);
 }
