@@ -7,6 +7,9 @@
 //!     DETECT_EVAL=opencv cargo bench -p facerecon-vision --bench detect_eval  # fidelity
 //!     DETECT_EVAL=tune cargo bench -p facerecon-vision --bench detect_eval    # combinations
 //!
+//! The product detector's run takes DETECT_C2F (coarse-to-fine stage fraction, or `off`)
+//! and DETECT_C2F_GRID (its coarse grid) to measure other settings.
+//!
 //! `tune` scans every candidate cascade once per photo, then scores combinations of
 //! cascades and neighbour counts; choices are made on the `trainset` folders only.
 //! Scan parameters of `tune` (defaults: those of the 0400 tune run): DETECT_SCALE (1.1),
@@ -99,6 +102,10 @@ fn main() {
             if let Ok(v) = std::env::var("DETECT_C2F") {
                 let coarse_to_fine = if v == "off" { None } else { Some(v.parse::<f32>().expect("DETECT_C2F: a number or off")) };
                 det.set_params(DetectorParams { coarse_to_fine, ..det.params().clone() }).unwrap();
+            }
+            // DETECT_C2F_GRID=n: coarse grid of the coarse-to-fine scan, in window steps.
+            if let Some(coarse_grid) = std::env::var("DETECT_C2F_GRID").ok().and_then(|v| v.parse().ok()) {
+                det.set_params(DetectorParams { coarse_grid, ..det.params().clone() }).unwrap();
             }
             println!("{:?}", det.params());
             let t = Instant::now();

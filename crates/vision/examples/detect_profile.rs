@@ -4,8 +4,8 @@
 //!
 //!     cargo run --release -p facerecon-vision --example detect_profile
 //!
-//! Parameters can be overridden: DETECT_SCALE (scale factor), DETECT_STEP (window step
-//! rule: `opencv`, `prefiltered` or a fixed step in level pixels).
+//! Parameters can be overridden: DETECT_C2F (coarse-to-fine stage fraction; negative: off)
+//! and DETECT_C2F_GRID (its coarse grid in window steps).
 
 use facerecon_vision::detect::integral::Integral;
 use facerecon_vision::detect::pyramid::{self, Grey};
@@ -45,6 +45,9 @@ fn main() {
     let mut params: DetectorParams = det.params().clone();
     if let Some(f) = std::env::var("DETECT_C2F").ok().and_then(|v| v.parse().ok()) {
         params.coarse_to_fine = if f < 0.0 { None } else { Some(f) };
+    }
+    if let Some(g) = std::env::var("DETECT_C2F_GRID").ok().and_then(|v| v.parse().ok()) {
+        params.coarse_grid = g;
     }
     det.set_params(params.clone()).unwrap();
     println!("params: {params:?}");

@@ -444,20 +444,21 @@ pub fn scan_rows(
 
 /// Coarse-to-fine scan of rows `rows` of a level: the same windows as [`scan_rows`] (every
 /// `step` level pixels), but evaluated in two passes. Pass 1 evaluates the windows on a
-/// grid of twice the step; a window that passes at least `min_stages` stages (or is
-/// accepted) marks the regular-grid windows within two steps of it, and pass 2 evaluates
+/// grid of `grid` (≥ 2) times the step; a window that passes at least `min_stages` stages
+/// (or is accepted) marks the regular-grid windows within `grid` steps of it, and pass 2 evaluates
 /// only the marked windows, an accepted one marking its own neighbourhood in turn. A face makes a cluster of windows that pass many stages, so
 /// its hits are found for about a quarter of the work on the background (which seldom
 /// passes `min_stages`). Without OpenCV's skip after a first-stage rejection: the coarse
 /// grid does that job.
 ///
-/// Pass 1 also evaluates the coarse rows up to two steps outside `rows` (marking only), so
+/// Pass 1 also evaluates the coarse rows up to `grid` steps outside `rows` (marking only), so
 /// that bands scanned separately mark across their borders the windows a single scan would.
 pub fn scan_rows_coarse_to_fine(
     c: &Compiled<'_>,
     ii: &Integral,
     scale: f32,
     step: usize,
+    grid: usize,
     min_stages: usize,
     rows: std::ops::Range<usize>,
     out: &mut Vec<(Rect, f32)>,
@@ -469,8 +470,8 @@ pub fn scan_rows_coarse_to_fine(
     let s = step.max(1);
     // A grid of 3 or 4 steps was measured faster but loses faces
     // (docs/decisions/0401-detector-speed.md).
-    let cs = 2 * s;
-    let reach = 2 * s;
+    let cs = grid.max(2) * s;
+    let reach = cs;
     // Valid window origins: x < nx, y < ny.
     let nx = ii.width - ex + 1;
     let ny = ii.height - ey + 1;

@@ -265,6 +265,7 @@ fn bad_params_are_refused() {
     assert!(det.set_params(DetectorParams { min_size_fraction: 2.0, ..Default::default() }).is_err());
     assert!(det.set_params(DetectorParams { fixed_step: Some(0), ..Default::default() }).is_err());
     assert!(det.set_params(DetectorParams { coarse_to_fine: Some(1.5), ..Default::default() }).is_err());
+    assert!(det.set_params(DetectorParams { coarse_grid: 1, ..Default::default() }).is_err());
     assert!(det.set_params(DetectorParams { fixed_step: Some(2), coarse_to_fine: Some(0.3), ..Default::default() }).is_ok());
     assert_eq!(DetectorParams::opencv().coarse_to_fine, None);
     assert_eq!(DetectorParams::opencv().min_size_fraction, 0.0);
@@ -362,17 +363,19 @@ fn coarse_to_fine_scan_matches_the_full_grid() {
         let (ex, ey) = c.extent();
         let full = sorted(all_windows(&cc, &ii, ex as usize, ey as usize, step));
         assert!(!full.is_empty(), "{file} step {step}: the face should give hits");
-        let banded = |min_stages: usize| {
+        let banded = |grid: usize, min_stages: usize| {
             let mut out = Vec::new();
             for y in (0..small.height).step_by(13) {
-                scan::scan_rows_coarse_to_fine(&cc, &ii, 1.0, step, min_stages, y..(y + 13).min(small.height), &mut out);
+                scan::scan_rows_coarse_to_fine(&cc, &ii, 1.0, step, grid, min_stages, y..(y + 13).min(small.height), &mut out);
             }
             sorted(out)
         };
         if c.feature_type == FeatureType::Lbp {
-            assert_eq!(banded(0), full, "{file} step {step}");
+            for grid in [2, 3] {
+                assert_eq!(banded(grid, 0), full, "{file} step {step} grid {grid}");
+            }
         }
-        let half = banded(c.stages.len() / 2);
+        let half = banded(2, c.stages.len() / 2);
         assert!(half.iter().all(|h| full.contains(h)), "{file} step {step}: hits outside the full grid");
         found += half.len();
         total += full.len();
