@@ -367,8 +367,8 @@ impl ViolaJones {
                 match p.coarse_to_fine {
                     Some(f) => {
                         let stages = (f * c.cascade().stages.len() as f32).ceil() as usize;
-                        let grid = p.coarse_grid as usize;
-                        scan::scan_rows_coarse_to_fine(c, &lv.integral, lv.scale, step, grid, stages, rows, &mut out)
+                        let coarse = scan::Coarse { grid: p.coarse_grid as usize, min_stages: stages };
+                        scan::scan_rows_coarse_to_fine(c, &lv.integral, lv.scale, step, coarse, rows, &mut out)
                     }
                     None => scan::scan_rows(c, &lv.integral, lv.scale, step, rows, &mut out),
                 }

@@ -442,24 +442,33 @@ pub fn scan_rows(
     }
 }
 
+/// The coarse pass of [`scan_rows_coarse_to_fine`]: its grid in window steps (≥ 2) and the
+/// number of stages a coarse window must pass to mark its neighbourhood.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Coarse {
+    pub grid: usize,
+    pub min_stages: usize,
+}
+
 /// Coarse-to-fine scan of rows `rows` of a level: the same windows as [`scan_rows`] (every
-/// `step` level pixels), but evaluated in two passes. Pass 1 evaluates the windows on a
-/// grid of `grid` (≥ 2) times the step; a window that passes at least `min_stages` stages
-/// (or is accepted) marks the regular-grid windows within `grid` steps of it, and pass 2 evaluates
-/// only the marked windows, an accepted one marking its own neighbourhood in turn. A face makes a cluster of windows that pass many stages, so
-/// its hits are found for about a quarter of the work on the background (which seldom
-/// passes `min_stages`). Without OpenCV's skip after a first-stage rejection: the coarse
-/// grid does that job.
+/// `step` level pixels), evaluated in two passes. Pass 1 evaluates the windows on a grid of
+/// `grid` (≥ 2) times the step; a window that passes at least `min_stages` stages (or is
+/// accepted) marks the regular-grid windows within `grid` steps of it. Pass 2 evaluates
+/// the marked windows, an accepted one marking its own neighbourhood in turn. A face makes
+/// a cluster of windows that pass many stages, so its hits are found while the background
+/// (which seldom passes `min_stages`) costs about 1/grid² of a full scan. Without OpenCV's
+/// skip after a first-stage rejection: the coarse grid does that job. The hits are a
+/// subset of a full scan's (grid 2: docs/decisions/0401-detector-speed.md).
 ///
-/// Pass 1 also evaluates the coarse rows up to `grid` steps outside `rows` (marking only), so
-/// that bands scanned separately mark across their borders the windows a single scan would.
+/// Pass 1 also evaluates the coarse rows up to `grid` steps outside `rows` (marking only),
+/// so that bands scanned separately mark across their borders the windows a single scan
+/// would.
 pub fn scan_rows_coarse_to_fine(
     c: &Compiled<'_>,
     ii: &Integral,
     scale: f32,
     step: usize,
-    grid: usize,
-    min_stages: usize,
+    Coarse { grid, min_stages }: Coarse,
     rows: std::ops::Range<usize>,
     out: &mut Vec<(Rect, f32)>,
 ) {
@@ -468,8 +477,6 @@ pub fn scan_rows_coarse_to_fine(
         return;
     }
     let s = step.max(1);
-    // A grid of 3 or 4 steps was measured faster but loses faces
-    // (docs/decisions/0401-detector-speed.md).
     let cs = grid.max(2) * s;
     let reach = cs;
     // Valid window origins: x < nx, y < ny.

@@ -366,7 +366,8 @@ fn coarse_to_fine_scan_matches_the_full_grid() {
         let banded = |grid: usize, min_stages: usize| {
             let mut out = Vec::new();
             for y in (0..small.height).step_by(13) {
-                scan::scan_rows_coarse_to_fine(&cc, &ii, 1.0, step, grid, min_stages, y..(y + 13).min(small.height), &mut out);
+                let coarse = scan::Coarse { grid, min_stages };
+                scan::scan_rows_coarse_to_fine(&cc, &ii, 1.0, step, coarse, y..(y + 13).min(small.height), &mut out);
             }
             sorted(out)
         };
