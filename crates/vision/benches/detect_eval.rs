@@ -7,8 +7,14 @@
 //!     DETECT_EVAL=opencv cargo bench -p facerecon-vision --bench detect_eval  # fidelity
 //!     DETECT_EVAL=tune cargo bench -p facerecon-vision --bench detect_eval    # combinations
 //!
+//! The product detector's run takes DETECT_C2F (coarse-to-fine stage fraction, or `off`)
+//! and DETECT_C2F_GRID (its coarse grid) to measure other settings.
+//!
 //! `tune` scans every candidate cascade once per photo, then scores combinations of
 //! cascades and neighbour counts; choices are made on the `trainset` folders only.
+//! Scan parameters of `tune` (defaults: those of the 0400 tune run): DETECT_SCALE (1.1),
+//! DETECT_MIN_FRACTION (0), DETECT_STEP (`opencv`, `prefiltered` or a fixed step in level
+//! pixels; `opencv`), DETECT_SKIP_ALT2=1 (leave out the alt2 cascade: faster).
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -92,6 +98,16 @@ fn main() {
                 let p = DetectorParams { step_on_prefiltered: false, ..det.params().clone() };
                 det.set_params(p).unwrap();
             }
+            // DETECT_C2F=f: coarse-to-fine scan with stage fraction f (`off`: every window).
+            if let Ok(v) = std::env::var("DETECT_C2F") {
+                let coarse_to_fine = if v == "off" { None } else { Some(v.parse::<f32>().expect("DETECT_C2F: a number or off")) };
+                det.set_params(DetectorParams { coarse_to_fine, ..det.params().clone() }).unwrap();
+            }
+            // DETECT_C2F_GRID=n: coarse grid of the coarse-to-fine scan, in window steps.
+            if let Some(coarse_grid) = std::env::var("DETECT_C2F_GRID").ok().and_then(|v| v.parse().ok()) {
+                det.set_params(DetectorParams { coarse_grid, ..det.params().clone() }).unwrap();
+            }
+            println!("{:?}", det.params());
             let t = Instant::now();
             let found: Vec<bool> = photos
                 .par_iter()
@@ -115,20 +131,29 @@ fn main() {
 fn tune(photos: &[Photo], dir: &std::path::Path) {
     let sf: f32 = std::env::var("DETECT_SCALE").ok().and_then(|s| s.parse().ok()).unwrap_or(1.1);
     let frac: f32 = std::env::var("DETECT_MIN_FRACTION").ok().and_then(|s| s.parse().ok()).unwrap_or(0.0);
-    let files = [
+    let mut files = vec![
         ("frontal", detect::FRONTAL_HAAR, false),
         ("alt2", detect::FRONTAL_HAAR_ALT2, false),
         ("profile", detect::PROFILE_HAAR, true),
         ("lbp-improved", detect::FRONTAL_LBP_IMPROVED, false),
         ("lbp-profile", detect::PROFILE_LBP, true),
     ];
+    if std::env::var("DETECT_SKIP_ALT2").is_ok() {
+        files.retain(|f| f.0 != "alt2");
+    }
+    let step = std::env::var("DETECT_STEP").unwrap_or_else(|_| "opencv".into());
+    let (step_on_prefiltered, fixed_step) = match step.as_str() {
+        "opencv" => (false, None),
+        "prefiltered" => (true, None),
+        n => (true, Some(n.parse::<u32>().expect("DETECT_STEP: opencv, prefiltered or a number"))),
+    };
     let paths: Vec<(PathBuf, bool)> = files.iter().map(|(_, f, m)| (dir.join(f), *m)).collect();
     let refs: Vec<(&std::path::Path, bool)> = paths.iter().map(|(p, m)| (p.as_path(), *m)).collect();
     // The tune run of docs/decisions/0400 used OpenCV's step rule (step_on_prefiltered off).
-    let params = DetectorParams { scale_factor: sf, min_size_fraction: frac, step_on_prefiltered: false, ..Default::default() };
+    let params = DetectorParams { scale_factor: sf, min_size_fraction: frac, step_on_prefiltered, fixed_step, ..Default::default() };
     let det = ViolaJones::from_files(&refs, params.clone()).unwrap();
     let names: Vec<String> = det.cascades().iter().map(|c| c.name.clone()).collect();
-    println!("cascades: {names:?}, scale {sf}, min fraction {frac}");
+    println!("cascades: {names:?}, scale {sf}, min fraction {frac}, step {step}");
     let t = Instant::now();
     let done = std::sync::atomic::AtomicUsize::new(0);
     let hits: Vec<Vec<Vec<(Rect, f32)>>> = photos
@@ -143,6 +168,7 @@ fn tune(photos: &[Photo], dir: &std::path::Path) {
         })
         .collect();
     println!("scanned in {:.1} s", t.elapsed().as_secs_f64());
+    let have = |n: &str| names.iter().any(|x| x == n);
     let idx = |n: &str| names.iter().position(|x| x == n).unwrap();
     let combos: Vec<(&str, Vec<&str>)> = vec![
         ("frontal", vec!["haarcascade_frontalface_default"]),
@@ -156,11 +182,16 @@ fn tune(photos: &[Photo], dir: &std::path::Path) {
         ("frontal+profile×2+lbp-profile×2", vec!["haarcascade_frontalface_default", "haarcascade_profileface", "haarcascade_profileface-mirrored", "lbpcascade_profileface", "lbpcascade_profileface-mirrored"]),
         ("lbp-improved+profile×2", vec!["lbpcascade_frontalface_improved", "haarcascade_profileface", "haarcascade_profileface-mirrored"]),
         ("frontal+lbp-improved+profile×2", vec!["haarcascade_frontalface_default", "lbpcascade_frontalface_improved", "haarcascade_profileface", "haarcascade_profileface-mirrored"]),
+        ("frontal+lbp-improved", vec!["haarcascade_frontalface_default", "lbpcascade_frontalface_improved"]),
+        ("frontal+lbp-improved+profile", vec!["haarcascade_frontalface_default", "lbpcascade_frontalface_improved", "haarcascade_profileface"]),
+        ("frontal+lbp-improved+lbp-profile×2", vec!["haarcascade_frontalface_default", "lbpcascade_frontalface_improved", "lbpcascade_profileface", "lbpcascade_profileface-mirrored"]),
+        ("lbp-improved+lbp-profile×2", vec!["lbpcascade_frontalface_improved", "lbpcascade_profileface", "lbpcascade_profileface-mirrored"]),
         ("all", names.iter().map(|s| s.as_str()).collect()),
     ];
+    let combos: Vec<(&str, Vec<&str>)> = combos.into_iter().filter(|(_, m)| m.iter().all(|n| have(n))).collect();
     println!("{:<34} {:>3} {:>7} {:>7} {:>9} {:>8}", "combination", "mn", "all %", "train %", "afw+test %", "faces/img");
     for (label, members) in &combos {
-        for mn in [1usize, 2, 3, 4, 5] {
+        for mn in [1usize, 2, 3, 4] {
             let mut total_faces = 0usize;
             let found: Vec<bool> = photos
                 .iter()

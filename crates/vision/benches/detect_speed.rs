@@ -43,9 +43,14 @@ fn bench(c: &mut Criterion) {
     cpu_per_call("default", || {
         det.detect_faces(&img);
     });
+    let mut every = det.clone();
+    every.set_params(DetectorParams { coarse_to_fine: None, ..det.params().clone() }).unwrap();
+    cpu_per_call("default scanning every window (coarse_to_fine off)", || {
+        every.detect_faces(&img);
+    });
     let mut slow = det.clone();
-    slow.set_params(DetectorParams { step_on_prefiltered: false, ..det.params().clone() }).unwrap();
-    cpu_per_call("default with OpenCV's step rule", || {
+    slow.set_params(DetectorParams { step_on_prefiltered: false, coarse_to_fine: None, ..det.params().clone() }).unwrap();
+    cpu_per_call("every window, OpenCV's step rule", || {
         slow.detect_faces(&img);
     });
     let mut opencv_like = det.clone();
@@ -54,6 +59,7 @@ fn bench(c: &mut Criterion) {
         opencv_like.detect_faces(&img);
     });
     c.bench_function("detect 640x480 default (haar frontal + lbp frontal + profile×2)", |b| b.iter(|| det.detect_faces(&img)));
+    c.bench_function("detect 640x480 default, every window", |b| b.iter(|| every.detect_faces(&img)));
     let mut opencv = det.clone();
     opencv.set_params(DetectorParams::opencv()).unwrap();
     c.bench_function("detect 640x480 opencv params (same cascades)", |b| b.iter(|| opencv.detect_faces(&img)));

@@ -10,7 +10,7 @@
 mod faces300w;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use facerecon_vision::detect::ViolaJones;
+use facerecon_vision::detect::{DetectorParams, ViolaJones};
 use facerecon_vision::face::{Detection, FaceDetector, ModelRunError};
 use facerecon_vision::landmarks::box_from_landmarks::BoxFromLandmarks;
 use facerecon_vision::landmarks::{BoxCalibration, ShapePredictor};
@@ -82,16 +82,27 @@ fn benches(c: &mut Criterion) {
         }));
     }
 
-    let front = FrontEnd::new(Box::new(ViolaJones::load_default().expect("cascades")), Box::new(sp.clone()))
-        .with_calibration(BoxCalibration::viola_jones_to_dlib())
-        .with_refinement(BoxFromLandmarks::dlib_68(), 2);
     let small = photo_640x480();
-    let faces = front.run(&small).unwrap();
-    eprintln!("640×480 photo: {} face(s)", faces.len());
-    c.bench_function("detect_and_landmarks_640x480", |bench| bench.iter(|| black_box(front.run(black_box(&small)).unwrap())));
-    eprintln!("detect_and_landmarks_640x480: {:.3} ms CPU per call (all threads)", 1e3 * cpu_per_call(30, || {
-        black_box(front.run(black_box(&small)).unwrap());
-    }));
+    // The product detector, and as a same-run reference the same detector scanning every
+    // window (coarse_to_fine off: the detections of the detector before
+    // docs/decisions/0401-detector-speed.md).
+    let mut every_window = ViolaJones::load_default().expect("cascades");
+    every_window.set_params(DetectorParams { coarse_to_fine: None, ..every_window.params().clone() }).unwrap();
+    for (name, det) in [
+        ("detect_and_landmarks_640x480", ViolaJones::load_default().expect("cascades")),
+        ("detect_and_landmarks_640x480_every_window", every_window),
+    ] {
+        // As `facerecon detect` runs it: calibrated box, landmarks, 2 refinement passes.
+        let front = FrontEnd::new(Box::new(det), Box::new(sp.clone()))
+            .with_calibration(BoxCalibration::viola_jones_to_dlib())
+            .with_refinement(BoxFromLandmarks::dlib_68(), 2);
+        let faces = front.run(&small).unwrap();
+        eprintln!("{name}: {} face(s)", faces.len());
+        c.bench_function(name, |bench| bench.iter(|| black_box(front.run(black_box(&small)).unwrap())));
+        eprintln!("{name}: {:.3} ms CPU per call (all threads)", 1e3 * cpu_per_call(30, || {
+            black_box(front.run(black_box(&small)).unwrap());
+        }));
+    }
 }
 
 criterion_group! {

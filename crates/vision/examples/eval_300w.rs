@@ -120,8 +120,13 @@ fn main() {
     let fraction: f32 = std::env::var("MIN_FACE_FRACTION").ok().and_then(|v| v.parse().ok()).unwrap_or(0.1);
     let mut params = detector.params().clone();
     params.min_size_fraction = fraction;
+    // DETECT_C2F=f: coarse-to-fine stage fraction (`off`: scan every window, the detector
+    // before docs/decisions/0401-detector-speed.md).
+    if let Ok(v) = std::env::var("DETECT_C2F") {
+        params.coarse_to_fine = if v == "off" { None } else { Some(v.parse().expect("DETECT_C2F: a number or off")) };
+    }
     detector.set_params(params).expect("detector parameters");
-    println!("detector: product cascades, min_size_fraction {fraction}");
+    println!("detector: product cascades, {:?}", detector.params());
     let t = Instant::now();
     let sp = Arc::new(ShapePredictor::load_default().expect("dlib model"));
     eprintln!("dlib model loaded in {:.3} s", t.elapsed().as_secs_f64());

@@ -1,9 +1,10 @@
 //! Viola–Jones face detection (thesis §1.1.1) on OpenCV's cascade files.
 //!
 //! This module owns the built-in detector: [`ViolaJones`] runs boosted cascades of Haar or
-//! LBP features over a grey image pyramid, exactly as OpenCV's
-//! `CascadeClassifier::detectMultiScale` does (same pyramid sizes, window steps, variance
-//! normalisation, early rejection and `groupRectangles`), for several cascades at once —
+//! LBP features over a grey image pyramid as OpenCV's `CascadeClassifier::detectMultiScale`
+//! does (same pyramid sizes, window steps, variance normalisation, early rejection and
+//! `groupRectangles`; by default the windows are visited coarse to fine, which skips most
+//! of the background — docs/decisions/0401-detector-speed.md), for several cascades at once —
 //! by default a frontal Haar cascade, a frontal LBP cascade, a profile cascade and the same
 //! profile cascade mirrored (which finds faces turned the other way without flipping the
 //! image) — and merges their faces by non-maximum suppression.
@@ -93,6 +94,18 @@ pub struct DetectorParams {
     /// windows on the first levels, half the detection time. Default on; off in
     /// [`DetectorParams::opencv`].
     pub step_on_prefiltered: bool,
+    /// `Some(n)`: scan every level with an `n`-px window step (level pixels), whatever its
+    /// scale, instead of the step rule above. `None` in [`DetectorParams::opencv`].
+    pub fixed_step: Option<u32>,
+    /// `Some(f)`: scan each level coarse to fine ([`scan::scan_rows_coarse_to_fine`]): a
+    /// grid of twice the step first, the regular grid only around windows that pass a
+    /// fraction `f` of the cascade's stages. `None`: every window of the regular grid.
+    /// Default `Some(0.5)` (half the detection time for 0.4 % fewer faces on faces-300w,
+    /// docs/decisions/0401-detector-speed.md); `None` in [`DetectorParams::opencv`].
+    pub coarse_to_fine: Option<f32>,
+    /// The coarse grid of `coarse_to_fine`, in window steps (2–8). Default 2: 3 is 25 %
+    /// faster but finds fewer faces (docs/decisions/0401-detector-speed.md).
+    pub coarse_grid: u32,
     /// Non-maximum suppression across cascades: IoU above which the weaker face is dropped.
     /// Default 0.3.
     pub nms_iou: f32,
@@ -111,6 +124,9 @@ impl Default for DetectorParams {
             max_size: None,
             prefilter: true,
             step_on_prefiltered: true,
+            fixed_step: None,
+            coarse_to_fine: Some(0.5),
+            coarse_grid: 2,
             nms_iou: 0.3,
             nms_containment: 0.7,
         }
@@ -121,7 +137,14 @@ impl DetectorParams {
     /// OpenCV's `detectMultiScale` settings of the reference figure: scale 1.1,
     /// 3 neighbours, min size 24 px, no relative minimum, no prefilter.
     pub fn opencv() -> Self {
-        DetectorParams { prefilter: false, step_on_prefiltered: false, min_size_fraction: 0.0, ..Default::default() }
+        DetectorParams {
+            prefilter: false,
+            step_on_prefiltered: false,
+            fixed_step: None,
+            coarse_to_fine: None,
+            min_size_fraction: 0.0,
+            ..Default::default()
+        }
     }
 
     fn validate(&self) -> Result<(), DetectError> {
@@ -134,7 +157,27 @@ impl DetectorParams {
         if !(0.0..=1.0).contains(&self.nms_iou) || !(0.0..=1.0).contains(&self.nms_containment) {
             return Err(DetectError::Params("nms thresholds must be in [0, 1]".into()));
         }
+        if matches!(self.fixed_step, Some(n) if !(1..=16).contains(&n)) {
+            return Err(DetectError::Params(format!("fixed_step {:?} must be in 1..=16", self.fixed_step)));
+        }
+        if !(2..=8).contains(&self.coarse_grid) {
+            return Err(DetectError::Params(format!("coarse_grid {} must be in 2..=8", self.coarse_grid)));
+        }
+        if matches!(self.coarse_to_fine, Some(f) if !(0.0..=1.0).contains(&f)) {
+            return Err(DetectError::Params(format!("coarse_to_fine {:?} must be in [0, 1]", self.coarse_to_fine)));
+        }
         Ok(())
+    }
+
+    /// The window step on a level of `scale` (relative to the source image) when the
+    /// pyramid was built from an image shrunk by `k`: OpenCV scans levels below scale 2
+    /// with a 2-px step and the others with 1 px.
+    pub fn window_step(&self, scale: f32, k: usize) -> usize {
+        if let Some(n) = self.fixed_step {
+            return n as usize;
+        }
+        let s = if self.step_on_prefiltered { scale / k as f32 } else { scale };
+        if s >= 2.0 { 1 } else { 2 }
     }
 }
 
@@ -285,13 +328,17 @@ impl ViolaJones {
             .collect();
         let squared = self.cascades.iter().any(|c| c.cascade.feature_type == cascade::FeatureType::Haar);
         let tilted = self.cascades.iter().any(|c| c.cascade.has_tilted());
+        // One integral stride for every level (the widest level's), so each cascade is
+        // compiled once per image rather than once per level (that was a fifth of the time).
+        let stride = all.iter().map(|&f| pyramid::level_size(iw, ih, f).0.max(1) + 1).max().unwrap_or(1);
         let levels: Vec<Level> = all
             .par_iter()
             .map(|&f| {
                 // Level size from the source image (OpenCV), sampled from the shrunk base.
                 let (lw, lh) = pyramid::level_size(iw, ih, f);
                 let img = base.resize(lw.max(1), lh.max(1));
-                Level { scale: f, integral: integral::Integral::new(&img.pixels, img.width, img.height, squared, tilted) }
+                let integral = integral::Integral::with_stride(&img.pixels, img.width, img.height, stride, squared, tilted);
+                Level { scale: f, integral }
             })
             .collect();
         // Work items: (level, cascade, row band), so both cores stay busy on the big levels.
@@ -310,22 +357,20 @@ impl ViolaJones {
                 }
             }
         }
-        let compiled: Vec<Vec<Option<Compiled<'_>>>> = levels
-            .iter()
-            .map(|lv| {
-                self.cascades
-                    .iter()
-                    .map(|c| wanted(&c.cascade, lv.scale).then(|| Compiled::new(&c.cascade, lv.integral.stride)))
-                    .collect()
-            })
-            .collect();
+        let compiled: Vec<Compiled<'_>> = self.cascades.par_iter().map(|c| Compiled::new(&c.cascade, stride)).collect();
         let hits: Vec<(usize, Vec<(Rect, f32)>)> = work
             .into_par_iter()
             .map(|(li, ci, rows)| {
                 let mut out = Vec::new();
-                if let Some(c) = &compiled[li][ci] {
-                    let step_scale = if p.step_on_prefiltered { levels[li].scale / k as f32 } else { levels[li].scale };
-                    scan::scan_rows(c, &levels[li].integral, levels[li].scale, step_scale, rows, &mut out);
+                let c = &compiled[ci];
+                let (lv, step) = (&levels[li], p.window_step(levels[li].scale, k));
+                match p.coarse_to_fine {
+                    Some(f) => {
+                        let stages = (f * c.cascade().stages.len() as f32).ceil() as usize;
+                        let coarse = scan::Coarse { grid: p.coarse_grid as usize, min_stages: stages };
+                        scan::scan_rows_coarse_to_fine(c, &lv.integral, lv.scale, step, coarse, rows, &mut out)
+                    }
+                    None => scan::scan_rows(c, &lv.integral, lv.scale, step, rows, &mut out),
                 }
                 (ci, out)
             })

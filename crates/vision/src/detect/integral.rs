@@ -22,8 +22,15 @@ pub struct Integral {
 
 impl Integral {
     pub fn new(pixels: &[u8], width: usize, height: usize, squared: bool, tilted: bool) -> Integral {
+        Self::with_stride(pixels, width, height, width + 1, squared, tilted)
+    }
+
+    /// As [`Integral::new`] with rows `stride` ≥ width + 1 entries apart (the entries past
+    /// width + 1 hold 0): the levels of a pyramid share one stride so that a cascade's
+    /// feature offsets are compiled once for all of them.
+    pub fn with_stride(pixels: &[u8], width: usize, height: usize, stride: usize, squared: bool, tilted: bool) -> Integral {
         debug_assert_eq!(pixels.len(), width * height);
-        let stride = width + 1;
+        let stride = stride.max(width + 1);
         let n = stride * (height + 1);
         let mut sum = vec![0i32; n];
         let mut sq = if squared { vec![0u32; n] } else { Vec::new() };
@@ -49,7 +56,18 @@ impl Integral {
                 }
             }
         }
-        let tilted = if tilted { tilted_integral(pixels, width, height) } else { Vec::new() };
+        let tilted = if !tilted {
+            Vec::new()
+        } else if stride == width + 1 {
+            tilted_integral(pixels, width, height)
+        } else {
+            let t = tilted_integral(pixels, width, height);
+            let mut out = vec![0i32; n];
+            for (dst, src) in out.chunks_exact_mut(stride).zip(t.chunks_exact(width + 1)) {
+                dst[..width + 1].copy_from_slice(src);
+            }
+            out
+        };
         Integral { stride, width, height, sum, sq, tilted }
     }
 
@@ -204,6 +222,22 @@ mod tests {
             }
             assert_eq!(count, 2 * rw * rh, "a tilted w×h rectangle holds 2wh pixels");
             assert_eq!(ii.tilted_sum(x, y, rw, rh), s, "rect {x} {y} {rw} {rh}");
+        }
+    }
+
+    #[test]
+    fn a_wider_stride_holds_the_same_sums() {
+        let (w, h) = (9, 7);
+        let px = noise(w, h, 5);
+        let a = Integral::new(&px, w, h, true, true);
+        let b = Integral::with_stride(&px, w, h, 15, true, true);
+        assert_eq!(b.stride, 15);
+        for y in 0..=h {
+            for x in 0..=w {
+                assert_eq!(a.sum[y * a.stride + x], b.sum[y * b.stride + x]);
+                assert_eq!(a.sq[y * a.stride + x], b.sq[y * b.stride + x]);
+                assert_eq!(a.tilted[y * a.stride + x], b.tilted[y * b.stride + x]);
+            }
         }
     }
 

@@ -2,7 +2,9 @@
 //! does: Haar windows normalised by the standard deviation of the window shrunk by one pixel
 //! on each side (windows with σ ≤ 10 grey levels are rejected outright, as in OpenCV),
 //! LBP codes compared against the centre block, stage sums against stage thresholds,
-//! the first failing stage rejecting the window.
+//! the first failing stage rejecting the window; and the two ways of visiting a level's
+//! windows: every one ([`scan_rows`], OpenCV's) or coarse to fine
+//! ([`scan_rows_coarse_to_fine`], the default).
 
 use super::cascade::{Cascade, Feature, FeatureType};
 use super::integral::Integral;
@@ -34,6 +36,28 @@ struct Node {
     right: i32,
 }
 
+/// A Haar stump with its feature inlined (the common case: every installed Haar cascade is
+/// made of stumps), so one window walks one contiguous array.
+#[derive(Clone, Copy)]
+struct HaarStump {
+    ofs: [[u32; 4]; 3],
+    weight: [f32; 3],
+    n: u32,
+    tilted: bool,
+    threshold: f32,
+    left: f32,
+    right: f32,
+}
+
+/// An LBP stump with its feature inlined.
+#[derive(Clone, Copy)]
+struct LbpStump {
+    ofs: [u32; 16],
+    subset: [u32; 8],
+    left: f32,
+    right: f32,
+}
+
 /// A cascade compiled for one integral-image stride: feature corners as offsets from the
 /// window's top-left entry.
 pub struct Compiled<'a> {
@@ -48,6 +72,12 @@ pub struct Compiled<'a> {
     subsets: Vec<[u32; 8]>,
     leaves: Vec<f32>,
     stumps_only: bool,
+    /// Stumps-only cascades: the weak classifiers in order, features inlined.
+    haar_stumps: Vec<HaarStump>,
+    lbp_stumps: Vec<LbpStump>,
+    /// Largest offset any feature or the normalisation window reads from a window's
+    /// top-left entry: a window at `base` is read only when `base + max_ofs` is in range.
+    max_ofs: usize,
     norm: [usize; 4],
     norm_area: f64,
     any_tilted: bool,
@@ -109,7 +139,57 @@ impl<'a> Compiled<'a> {
         let any_tilted = cascade.has_tilted();
         let (ex, ey) = cascade.extent();
         let extent = (ex as usize, ey as usize);
-        Compiled { cascade, haar, lbp, stages, weak, nodes, subsets, leaves, stumps_only, norm, norm_area, any_tilted, extent }
+        let mut max_ofs = norm.into_iter().max().unwrap_or(0);
+        for o in &haar {
+            max_ofs = max_ofs.max(o.ofs[..o.n].iter().flatten().copied().max().unwrap_or(0));
+        }
+        for o in &lbp {
+            max_ofs = max_ofs.max(o.iter().copied().max().unwrap_or(0));
+        }
+        // Offsets fit u32 for any level a real photo makes; larger ones keep the generic path.
+        let small = u32::try_from(max_ofs).is_ok();
+        let (mut haar_stumps, mut lbp_stumps) = (Vec::new(), Vec::new());
+        if stumps_only && small {
+            for &(n0, l0) in &weak {
+                let (node, left, right) = (&nodes[n0], leaves[l0], leaves[l0 + 1]);
+                let f = node.feature as usize;
+                match cascade.feature_type {
+                    FeatureType::Haar => {
+                        let o = &haar[f];
+                        haar_stumps.push(HaarStump {
+                            ofs: o.ofs.map(|r| r.map(|v| v as u32)),
+                            weight: o.weight,
+                            n: o.n as u32,
+                            tilted: o.tilted,
+                            threshold: node.threshold,
+                            left,
+                            right,
+                        });
+                    }
+                    FeatureType::Lbp => {
+                        lbp_stumps.push(LbpStump { ofs: lbp[f].map(|v| v as u32), subset: subsets[n0], left, right })
+                    }
+                }
+            }
+        }
+        Compiled {
+            cascade,
+            haar,
+            lbp,
+            stages,
+            weak,
+            nodes,
+            subsets,
+            leaves,
+            stumps_only,
+            haar_stumps,
+            lbp_stumps,
+            max_ofs,
+            norm,
+            norm_area,
+            any_tilted,
+            extent,
+        }
     }
 
     pub fn cascade(&self) -> &Cascade {
@@ -117,24 +197,119 @@ impl<'a> Compiled<'a> {
     }
 
     /// Evaluates the window whose top-left integral entry is `base`. The caller guarantees
-    /// the window (its [`Cascade::extent`]) lies inside the level.
+    /// the window (its [`Cascade::extent`]) lies inside the level; a window reaching past
+    /// the integral image panics.
     #[inline]
     pub fn eval(&self, ii: &Integral, base: usize) -> Outcome {
+        let in_range = |v: usize| v == 0 || base + self.max_ofs < v;
+        let n = ii.sum.len();
+        assert!(
+            base + self.max_ofs < n
+                && (self.cascade.feature_type == FeatureType::Lbp || ii.sq.len() == n)
+                && (!self.any_tilted || ii.tilted.len() == n)
+                && in_range(ii.sq.len())
+                && in_range(ii.tilted.len()),
+            "window at {base} reaches past the integral image or lacks a sum the cascade needs"
+        );
+        if !self.haar_stumps.is_empty() {
+            return self.eval_haar_stumps(ii, base);
+        }
+        if !self.lbp_stumps.is_empty() {
+            return self.eval_lbp_stumps(ii, base);
+        }
+        self.eval_generic(ii, base)
+    }
+
+    /// The window's variance normalisation factor, or `None` for a flat window (OpenCV's
+    /// rule: reject when area / σ·area ≥ 0.1, i.e. σ ≤ 10 grey levels).
+    #[inline(always)]
+    fn norm_factor(&self, ii: &Integral, base: usize) -> Option<f32> {
+        let s = &ii.sum[base..];
+        let q = &ii.sq[base..];
+        let [a, b, c, d] = self.norm;
+        let sum = s[a].wrapping_sub(s[b]).wrapping_sub(s[c]).wrapping_add(s[d]);
+        let sq = q[a].wrapping_sub(q[b]).wrapping_sub(q[c]).wrapping_add(q[d]);
+        let nf = self.norm_area * f64::from(sq) - f64::from(sum) * f64::from(sum);
+        if !(nf > 0.0) {
+            return None;
+        }
+        let inv = (1.0 / nf.sqrt()) as f32;
+        if self.norm_area as f32 * inv >= 0.1 {
+            return None;
+        }
+        Some(inv)
+    }
+
+    /// Stumps-only Haar cascade: the same arithmetic as [`Compiled::eval_generic`] in the
+    /// same order (identical outcomes), over the inlined stumps, without per-read bounds
+    /// checks.
+    #[inline]
+    fn eval_haar_stumps(&self, ii: &Integral, base: usize) -> Outcome {
+        let Some(inv) = self.norm_factor(ii, base) else {
+            return Outcome::Flat;
+        };
+        let s = &ii.sum[base..];
+        let t = if self.any_tilted { &ii.tilted[base..] } else { s };
+        let mut last = 0f64;
+        for (si, &(start, end, threshold)) in self.stages.iter().enumerate() {
+            let mut acc = 0f64;
+            for st in &self.haar_stumps[start..end] {
+                let src = if st.tilted { t } else { s };
+                let mut v = 0f32;
+                for r in 0..st.n as usize {
+                    let [p0, p1, p2, p3] = st.ofs[r];
+                    // SAFETY: every offset is ≤ max_ofs and `eval` checked that
+                    // base + max_ofs < len for the sum (and tilted) images, which `src`
+                    // starts at `base`.
+                    let rs = unsafe {
+                        src.get_unchecked(p0 as usize)
+                            .wrapping_sub(*src.get_unchecked(p1 as usize))
+                            .wrapping_sub(*src.get_unchecked(p2 as usize))
+                            .wrapping_add(*src.get_unchecked(p3 as usize))
+                    };
+                    v += st.weight[r] * rs as f32;
+                }
+                acc += f64::from(if v * inv < st.threshold { st.left } else { st.right });
+            }
+            if acc < f64::from(threshold) {
+                return Outcome::Rejected(si);
+            }
+            last = acc - f64::from(threshold);
+        }
+        Outcome::Accepted(last as f32)
+    }
+
+    /// Stumps-only LBP cascade over the inlined stumps (identical outcomes to the generic
+    /// path), without per-read bounds checks.
+    #[inline]
+    fn eval_lbp_stumps(&self, ii: &Integral, base: usize) -> Outcome {
+        let s = &ii.sum[base..];
+        let mut last = 0f64;
+        for (si, &(start, end, threshold)) in self.stages.iter().enumerate() {
+            let mut acc = 0f64;
+            for st in &self.lbp_stumps[start..end] {
+                // SAFETY: every offset is ≤ max_ofs and `eval` checked base + max_ofs < len.
+                let v: [i32; 16] = std::array::from_fn(|i| unsafe { *s.get_unchecked(st.ofs[i] as usize) });
+                let c = lbp_code_of(&v);
+                let left = st.subset[(c >> 5) as usize] & (1 << (c & 31)) != 0;
+                acc += f64::from(if left { st.left } else { st.right });
+            }
+            if acc < f64::from(threshold) {
+                return Outcome::Rejected(si);
+            }
+            last = acc - f64::from(threshold);
+        }
+        Outcome::Accepted(last as f32)
+    }
+
+    /// Any cascade (trees included), feature by feature through the node tables.
+    pub(crate) fn eval_generic(&self, ii: &Integral, base: usize) -> Outcome {
         match self.cascade.feature_type {
             FeatureType::Haar => {
                 let s = &ii.sum[base..];
-                let q = &ii.sq[base..];
-                let [a, b, c, d] = self.norm;
-                let sum = s[a].wrapping_sub(s[b]).wrapping_sub(s[c]).wrapping_add(s[d]);
-                let sq = q[a].wrapping_sub(q[b]).wrapping_sub(q[c]).wrapping_add(q[d]);
-                let nf = self.norm_area * f64::from(sq) - f64::from(sum) * f64::from(sum);
-                if !(nf > 0.0) {
+                let Some(inv) = self.norm_factor(ii, base) else {
                     return Outcome::Flat;
-                }
-                let inv = (1.0 / nf.sqrt()) as f32;
-                if self.norm_area as f32 * inv >= 0.1 {
-                    return Outcome::Flat;
-                }
+                };
                 let t = if self.any_tilted { &ii.tilted[base..] } else { &[][..] };
                 self.run(|f| {
                     let o = &self.haar[f as usize];
@@ -195,8 +370,14 @@ impl<'a> Compiled<'a> {
 /// when the block's sum ≥ the centre's.
 #[inline(always)]
 fn lbp_code(o: &[usize; 16], s: &[i32]) -> u32 {
+    lbp_code_of(&std::array::from_fn(|i| s[o[i]]))
+}
+
+/// The LBP code from the 16 integral values at the grid's corners (row-major 4 × 4).
+#[inline(always)]
+fn lbp_code_of(v: &[i32; 16]) -> u32 {
     let b = |p0: usize, p1: usize, p2: usize, p3: usize| {
-        s[o[p0]].wrapping_sub(s[o[p1]]).wrapping_sub(s[o[p2]]).wrapping_add(s[o[p3]])
+        v[p0].wrapping_sub(v[p1]).wrapping_sub(v[p2]).wrapping_add(v[p3])
     };
     let c = b(5, 6, 9, 10);
     (u32::from(b(0, 1, 4, 5) >= c) << 7)
@@ -218,15 +399,15 @@ pub struct Rect {
     pub h: i32,
 }
 
-/// Scans rows `rows` of a level, OpenCV's way: step 2 px below scale 2 (1 px above), and a
-/// window rejected by the very first stage also skips the next position. Accepted windows
-/// are returned as rectangles in source pixels (`round(x·f)`, `round(y·f)`, window × f).
-/// `step_scale` decides the step (OpenCV: the level's scale, `scale`).
+/// Scans rows `rows` of a level, OpenCV's way: windows every `step` level pixels (OpenCV:
+/// 2 below scale 2, else 1; see `DetectorParams::window_step`), and a window rejected by
+/// the very first stage also skips the next position. Accepted windows are returned as
+/// rectangles in source pixels (`round(x·f)`, `round(y·f)`, window × f).
 pub fn scan_rows(
     c: &Compiled<'_>,
     ii: &Integral,
     scale: f32,
-    step_scale: f32,
+    step: usize,
     rows: std::ops::Range<usize>,
     out: &mut Vec<(Rect, f32)>,
 ) {
@@ -234,7 +415,7 @@ pub fn scan_rows(
     if ii.width < ex || ii.height < ey {
         return;
     }
-    let step = if step_scale >= 2.0 { 1 } else { 2 };
+    let step = step.max(1);
     let win_w = (f64::from(c.cascade.width) * f64::from(scale)).round() as i32;
     let win_h = (f64::from(c.cascade.height) * f64::from(scale)).round() as i32;
     let y_end = rows.end.min(ii.height - ey + 1);
@@ -258,5 +439,124 @@ pub fn scan_rows(
             x += step;
         }
         y += step;
+    }
+}
+
+/// The coarse pass of [`scan_rows_coarse_to_fine`]: its grid in window steps (≥ 2) and the
+/// number of stages a coarse window must pass to mark its neighbourhood.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Coarse {
+    pub grid: usize,
+    pub min_stages: usize,
+}
+
+/// Coarse-to-fine scan of rows `rows` of a level: the same windows as [`scan_rows`] (every
+/// `step` level pixels), evaluated in two passes. Pass 1 evaluates the windows on a grid of
+/// `grid` (≥ 2) times the step; a window that passes at least `min_stages` stages (or is
+/// accepted) marks the regular-grid windows within `grid` steps of it. Pass 2 evaluates
+/// the marked windows, an accepted one marking its own neighbourhood in turn. A face makes
+/// a cluster of windows that pass many stages, so its hits are found while the background
+/// (which seldom passes `min_stages`) costs about 1/grid² of a full scan. Without OpenCV's
+/// skip after a first-stage rejection: the coarse grid does that job. The hits are a
+/// subset of a full scan's (grid 2: docs/decisions/0401-detector-speed.md).
+///
+/// Pass 1 also evaluates the coarse rows up to `grid` steps outside `rows` (marking only),
+/// so that bands scanned separately mark across their borders the windows a single scan
+/// would.
+pub fn scan_rows_coarse_to_fine(
+    c: &Compiled<'_>,
+    ii: &Integral,
+    scale: f32,
+    step: usize,
+    Coarse { grid, min_stages }: Coarse,
+    rows: std::ops::Range<usize>,
+    out: &mut Vec<(Rect, f32)>,
+) {
+    let (ex, ey) = c.extent;
+    if ii.width < ex || ii.height < ey {
+        return;
+    }
+    let s = step.max(1);
+    let cs = grid.max(2) * s;
+    let reach = cs;
+    // Valid window origins: x < nx, y < ny.
+    let nx = ii.width - ex + 1;
+    let ny = ii.height - ey + 1;
+    let y0 = rows.start.div_ceil(s) * s;
+    let y1 = rows.end.min(ny);
+    if y0 >= y1 {
+        return;
+    }
+    let win_w = (f64::from(c.cascade.width) * f64::from(scale)).round() as i32;
+    let win_h = (f64::from(c.cascade.height) * f64::from(scale)).round() as i32;
+    let hit = |x: usize, y: usize, margin: f32| {
+        (
+            Rect {
+                x: (x as f64 * f64::from(scale)).round() as i32,
+                y: (y as f64 * f64::from(scale)).round() as i32,
+                w: win_w,
+                h: win_h,
+            },
+            margin,
+        )
+    };
+    let cols = nx.div_ceil(s);
+    let band_rows = (y1 - y0).div_ceil(s);
+    // Per regular-grid window of the band: 0 not marked, 1 marked (queued), 2 evaluated.
+    let mut state = vec![0u8; cols * band_rows];
+    let mut queue: Vec<usize> = Vec::new();
+    let mark_around = |state: &mut [u8], queue: &mut Vec<usize>, x: usize, y: usize| {
+        let ya = y.saturating_sub(reach).max(y0).div_ceil(s) * s;
+        let yb = (y + reach + 1).min(y1);
+        let xa = x.saturating_sub(reach).div_ceil(s) * s;
+        let xb = (x + reach + 1).min(nx);
+        for yy in (ya..yb).step_by(s) {
+            for xx in (xa..xb).step_by(s) {
+                let cell = (yy - y0) / s * cols + xx / s;
+                if state[cell] == 0 {
+                    state[cell] = 1;
+                    queue.push(cell);
+                }
+            }
+        }
+    };
+    let mut y = y0.saturating_sub(reach).div_ceil(cs) * cs;
+    while y < (y1 + reach).min(ny) {
+        let inside = y >= y0 && y < y1;
+        let mut x = 0;
+        while x < nx {
+            if inside {
+                state[(y - y0) / s * cols + x / s] = 2;
+            }
+            let survives = match c.eval(ii, y * ii.stride + x) {
+                Outcome::Accepted(margin) => {
+                    if inside {
+                        out.push(hit(x, y, margin));
+                    }
+                    true
+                }
+                Outcome::Rejected(passed) => passed >= min_stages,
+                Outcome::Flat => false,
+            };
+            if survives {
+                mark_around(&mut state, &mut queue, x, y);
+            }
+            x += cs;
+        }
+        y += cs;
+    }
+    // Pass 2: the marked windows; an accepted one marks its own neighbourhood too, so a
+    // face's whole cluster of hits is found (its grouped box then averages the same hits as
+    // a full scan would).
+    while let Some(cell) = queue.pop() {
+        if state[cell] == 2 {
+            continue; // a coarse window, evaluated in pass 1
+        }
+        state[cell] = 2;
+        let (x, y) = (cell % cols * s, y0 + cell / cols * s);
+        if let Outcome::Accepted(margin) = c.eval(ii, y * ii.stride + x) {
+            out.push(hit(x, y, margin));
+            mark_around(&mut state, &mut queue, x, y);
+        }
     }
 }

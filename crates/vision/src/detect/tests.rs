@@ -263,6 +263,140 @@ fn bad_params_are_refused() {
     let mut det = ViolaJones::load_default().unwrap();
     assert!(det.set_params(DetectorParams { scale_factor: 1.0, ..Default::default() }).is_err());
     assert!(det.set_params(DetectorParams { min_size_fraction: 2.0, ..Default::default() }).is_err());
+    assert!(det.set_params(DetectorParams { fixed_step: Some(0), ..Default::default() }).is_err());
+    assert!(det.set_params(DetectorParams { coarse_to_fine: Some(1.5), ..Default::default() }).is_err());
+    assert!(det.set_params(DetectorParams { coarse_grid: 1, ..Default::default() }).is_err());
+    assert!(det.set_params(DetectorParams { fixed_step: Some(2), coarse_to_fine: Some(0.3), ..Default::default() }).is_ok());
+    assert_eq!(DetectorParams::opencv().coarse_to_fine, None);
     assert_eq!(DetectorParams::opencv().min_size_fraction, 0.0);
     assert!(det.set_params(DetectorParams::opencv()).is_ok());
+}
+
+/// The inlined-stump evaluation (the fast path of every installed stump cascade) gives
+/// exactly the outcomes of the generic node-table path, window for window, on a real photo.
+#[test]
+fn inlined_stumps_match_the_generic_path() {
+    let rel = "helen/testset/296814969_3.jpg";
+    let grey = Grey::from_rgb(&photo(rel));
+    for file in [FRONTAL_HAAR, FRONTAL_LBP_IMPROVED, PROFILE_HAAR] {
+        let c = Cascade::from_xml(&std::fs::read_to_string(opencv_dir().join(file)).unwrap()).unwrap();
+        let small = face_level(&grey, rel, &c);
+        let ii = Integral::new(&small.pixels, small.width, small.height, true, false);
+        for c in [c.mirrored(), c] {
+            let cc = Compiled::new(&c, ii.stride);
+            let (ex, ey) = c.extent();
+            let (mut deep, mut accepted) = (0, 0);
+            for y in 0..=small.height - ey as usize {
+                for x in 0..=small.width - ex as usize {
+                    let base = y * ii.stride + x;
+                    let a = cc.eval(&ii, base);
+                    assert_eq!(a, cc.eval_generic(&ii, base), "{file} at ({x},{y})");
+                    deep += usize::from(matches!(a, Outcome::Rejected(s) if s >= 3));
+                    accepted += usize::from(matches!(a, Outcome::Accepted(_)));
+                }
+            }
+            assert!(deep > 10, "{file}: the photo should exercise deeper stages ({deep})");
+            if file != PROFILE_HAAR {
+                assert!(accepted > 0, "{file}: the frontal face should be accepted somewhere");
+            }
+        }
+    }
+}
+
+/// The photo shrunk so that its annotated face (landmark box) is 0.5–1.0 of the cascade
+/// window wide, the ratio (in steps of 0.1) at which the cascade accepts most windows.
+fn face_level(grey: &Grey, rel: &str, c: &Cascade) -> Grey {
+    let truth = manifest_box(rel);
+    let (ex, ey) = c.extent();
+    let mut best = (0, None);
+    for ratio in [0.5f32, 0.6, 0.7, 0.8, 0.9, 1.0] {
+        let f = (truth.x1 - truth.x0) / (ratio * c.width as f32);
+        let g = grey.resize((grey.width as f32 / f).round() as usize, (grey.height as f32 / f).round() as usize);
+        let ii = Integral::new(&g.pixels, g.width, g.height, true, false);
+        let cc = Compiled::new(c, ii.stride);
+        let mut accepted = 0;
+        for y in 0..=g.height - ey as usize {
+            for x in 0..=g.width - ex as usize {
+                accepted += usize::from(matches!(cc.eval_generic(&ii, y * ii.stride + x), Outcome::Accepted(_)));
+            }
+        }
+        if best.1.is_none() || accepted > best.0 {
+            best = (accepted, Some(g));
+        }
+    }
+    best.1.unwrap()
+}
+
+/// Every window of the regular grid (no skip after a first-stage rejection), as a sorted
+/// list of hits: the oracle of the coarse-to-fine scan.
+fn all_windows(c: &Compiled<'_>, ii: &Integral, ex: usize, ey: usize, step: usize) -> Vec<(scan::Rect, f32)> {
+    let mut out = Vec::new();
+    for y in (0..=ii.height - ey).step_by(step) {
+        for x in (0..=ii.width - ex).step_by(step) {
+            if let Outcome::Accepted(m) = c.eval(ii, y * ii.stride + x) {
+                out.push((scan::Rect { x: x as i32, y: y as i32, w: c.cascade().width, h: c.cascade().height }, m));
+            }
+        }
+    }
+    out
+}
+
+fn sorted(mut v: Vec<(scan::Rect, f32)>) -> Vec<(scan::Rect, f32)> {
+    v.sort_by_key(|(r, _)| (r.y, r.x));
+    v
+}
+
+/// The coarse-to-fine scan, in bands as the detector runs it: with `min_stages` 0 every
+/// coarse window marks its neighbourhood, so it must find exactly the full grid's hits
+/// (LBP: no flat windows); with a real threshold its hits are a subset of them that still
+/// holds at least half the face's hits.
+#[test]
+fn coarse_to_fine_scan_matches_the_full_grid() {
+    let rel = "helen/testset/296814969_3.jpg";
+    let grey = Grey::from_rgb(&photo(rel));
+    let (mut found, mut total) = (0, 0);
+    for (file, step) in [(FRONTAL_LBP_IMPROVED, 1), (FRONTAL_LBP_IMPROVED, 2), (FRONTAL_HAAR, 1), (FRONTAL_HAAR, 2)] {
+        let c = Cascade::from_xml(&std::fs::read_to_string(opencv_dir().join(file)).unwrap()).unwrap();
+        let small = face_level(&grey, rel, &c);
+        let ii = Integral::new(&small.pixels, small.width, small.height, true, false);
+        let cc = Compiled::new(&c, ii.stride);
+        let (ex, ey) = c.extent();
+        let full = sorted(all_windows(&cc, &ii, ex as usize, ey as usize, step));
+        assert!(!full.is_empty(), "{file} step {step}: the face should give hits");
+        let banded = |grid: usize, min_stages: usize| {
+            let mut out = Vec::new();
+            for y in (0..small.height).step_by(13) {
+                let coarse = scan::Coarse { grid, min_stages };
+                scan::scan_rows_coarse_to_fine(&cc, &ii, 1.0, step, coarse, y..(y + 13).min(small.height), &mut out);
+            }
+            sorted(out)
+        };
+        if c.feature_type == FeatureType::Lbp {
+            for grid in [2, 3] {
+                assert_eq!(banded(grid, 0), full, "{file} step {step} grid {grid}");
+            }
+        }
+        let half = banded(2, c.stages.len() / 2);
+        assert!(half.iter().all(|h| full.contains(h)), "{file} step {step}: hits outside the full grid");
+        found += half.len();
+        total += full.len();
+    }
+    assert!(2 * found >= total, "coarse to fine found {found} of {total} hits");
+}
+
+#[test]
+fn window_step_follows_opencvs_rule_or_the_fixed_step() {
+    let opencv = DetectorParams::opencv();
+    assert_eq!(opencv.window_step(1.0, 1), 2);
+    assert_eq!(opencv.window_step(1.99, 1), 2);
+    assert_eq!(opencv.window_step(2.0, 1), 1);
+    // OpenCV's rule looks at the source scale even when the pyramid was prefiltered by 2…
+    assert_eq!(opencv.window_step(2.5, 2), 1);
+    // …the product's at the scale relative to the prefiltered image.
+    let product = DetectorParams::default();
+    assert_eq!(product.window_step(2.5, 2), 2);
+    assert_eq!(product.window_step(4.0, 2), 1);
+    let fixed = DetectorParams { fixed_step: Some(3), ..Default::default() };
+    assert_eq!(fixed.window_step(1.0, 1), 3);
+    assert_eq!(fixed.window_step(9.0, 2), 3);
 }
