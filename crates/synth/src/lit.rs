@@ -5,7 +5,7 @@
 //! allocates nothing after the first call. Normals are accumulated in f32 (the renderer's
 //! precision; `scene::vertex_normals` uses f64 as the reference, compared in the tests).
 
-use facerecon_model::scene::{Pose, sh_basis};
+use facerecon_model::scene::{self, Pose};
 use facerecon_model::{Coefficients, Extent, Mesh, MorphableModel};
 
 use crate::SynthError;
@@ -55,17 +55,7 @@ impl LitFace {
         }
 
         model.albedo_into(&c.albedo, Extent::Face, &mut self.albedo).map_err(SynthError::model)?;
-        self.colors.clear();
-        self.colors.extend(self.albedo.iter().zip(&self.normals).map(|(a, nrm)| {
-            let phi = sh_basis(*nrm);
-            let mut s = [0.0f32; 3];
-            for (ph, w) in phi.iter().zip(&c.light) {
-                s[0] += ph * w[0];
-                s[1] += ph * w[1];
-                s[2] += ph * w[2];
-            }
-            [a[0] * s[0], a[1] * s[1], a[2] * s[2]]
-        }));
+        scene::shade_into(&self.albedo, &self.normals, &c.light, &mut self.colors);
         Ok(())
     }
 
@@ -85,7 +75,6 @@ impl LitFace {
 mod tests {
     use super::*;
     use crate::rng::Rng;
-    use facerecon_model::scene;
 
     #[test]
     fn matches_the_scene_reference_path() {
