@@ -188,7 +188,7 @@ const SH_NORM: [f32; SH_COEFFS] = [
 ];
 
 /// The polynomial part of each basis function (see [`sh_basis`]), with the shared
-/// subexpressions computed once.
+/// subexpressions computed once; one definition for [`sh_basis`] and the shading loop.
 #[inline(always)]
 fn sh_polynomials(x: f32, y: f32, z: f32) -> [f32; SH_COEFFS] {
     let (x2, y2, z2) = (x * x, y * y, z * z);
@@ -220,7 +220,7 @@ fn sh_polynomials(x: f32, y: f32, z: f32) -> [f32; SH_COEFFS] {
         yz * a,
         xy * f7,
         yz * g7,
-        35.0 * z2 * z2 - 30.0 * z2 + 3.0,
+        (35.0 * z2 - 30.0) * z2 + 3.0,
         xz * g7,
         d * f7,
         xz * b,

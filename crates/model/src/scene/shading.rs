@@ -1,14 +1,14 @@
 //! The per-vertex SH shading loop behind [`shade_into`](super::shade_into): the lighting
 //! `w` (25 × 3) is multiplied by the basis normalisation constants once per call, and each
 //! vertex evaluates only the 25 basis polynomials ([`sh_polynomials`](super::sh_polynomials))
-//! and three 25-term dot products. Vertices go eight at a time through structure-of-arrays
-//! lanes so that the compiler vectorises across vertices (the AoS `[f32; 3]` layout does not
-//! vectorise by itself).
+//! and three 25-term dot products. Normals are transposed into structure-of-arrays blocks
+//! on the stack, so that the compiler vectorises the evaluation across vertices (the AoS
+//! `[f32; 3]` layout does not vectorise by itself; see docs/bench/model.md).
 
 use super::{SH_COEFFS, SH_NORM, sh_polynomials};
 
-/// Vertices per block: one 256-bit vector of f32.
-const LANES: usize = 8;
+/// Vertices per block (three 256-byte stack arrays in, three out).
+const BLOCK: usize = 64;
 
 /// Lighting with the basis constants folded in: `w'_k = SH_NORM_k · w_k`, so that
 /// `w'ᵀ p(n) = wᵀ φ(n)`.
@@ -19,17 +19,20 @@ impl FoldedLight {
         Self(std::array::from_fn(|k| light[k].map(|w| w * SH_NORM[k])))
     }
 
-    /// The shading factor of one normal (`w'ᵀ p(n)` per channel).
+    /// The shading factor per channel, `w'ᵀ p(n)`.
     #[inline(always)]
     fn eval(&self, x: f32, y: f32, z: f32) -> [f32; 3] {
         let p = sh_polynomials(x, y, z);
-        let mut s = [0.0f32; 3];
-        for (pk, w) in p.iter().zip(&self.0) {
-            s[0] += pk * w[0];
-            s[1] += pk * w[1];
-            s[2] += pk * w[2];
+        let w = &self.0;
+        // Written out rather than a loop over k: LLVM does not unroll a 25-step loop, and a
+        // loop inside keeps the loop over vertices from vectorising.
+        macro_rules! dot {
+            ($c:literal) => {
+                dot!($c; 0 1 2 3 4 5 6 7 8 9 10 11 12 13 14 15 16 17 18 19 20 21 22 23 24)
+            };
+            ($c:literal; $k0:literal $($k:literal)*) => { p[$k0] * w[$k0][$c] $(+ p[$k] * w[$k][$c])* };
         }
-        s
+        [dot!(0), dot!(1), dot!(2)]
     }
 }
 
@@ -68,35 +71,53 @@ fn shade_rows_generic(
     normals: &[[f32; 3]],
     out: &mut [[f32; 3]],
 ) {
-    let n = out.len();
-    let (albedo, normals) = (&albedo[..n], &normals[..n]);
-    let blocks = n / LANES * LANES;
-    for ((o, a), nrm) in out[..blocks]
-        .chunks_exact_mut(LANES)
-        .zip(albedo[..blocks].chunks_exact(LANES))
-        .zip(normals[..blocks].chunks_exact(LANES))
+    for ((o, a), nrm) in out
+        .chunks_mut(BLOCK)
+        .zip(albedo.chunks(BLOCK))
+        .zip(normals.chunks(BLOCK))
     {
-        let (mut x, mut y, mut z) = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
-        for l in 0..LANES {
-            [x[l], y[l], z[l]] = nrm[l];
+        let m = o.len().min(a.len()).min(nrm.len());
+        let (mut x, mut y, mut z) = ([0.0f32; BLOCK], [0.0f32; BLOCK], [0.0f32; BLOCK]);
+        for i in 0..m {
+            [x[i], y[i], z[i]] = nrm[i];
         }
-        let mut s = [[0.0f32; LANES]; 3];
-        for l in 0..LANES {
-            let v = light.eval(x[l], y[l], z[l]);
-            s[0][l] = v[0];
-            s[1][l] = v[1];
-            s[2][l] = v[2];
+        let (mut r, mut g, mut b) = ([0.0f32; BLOCK], [0.0f32; BLOCK], [0.0f32; BLOCK]);
+        // The loop that matters: contiguous in and out, vectorised across vertices.
+        for i in 0..m {
+            [r[i], g[i], b[i]] = light.eval(x[i], y[i], z[i]);
         }
-        for l in 0..LANES {
-            o[l] = [a[l][0] * s[0][l], a[l][1] * s[1][l], a[l][2] * s[2][l]];
+        for i in 0..m {
+            o[i] = [a[i][0] * r[i], a[i][1] * g[i], a[i][2] * b[i]];
         }
     }
-    for ((o, a), nrm) in out[blocks..]
-        .iter_mut()
-        .zip(&albedo[blocks..])
-        .zip(&normals[blocks..])
-    {
-        let s = light.eval(nrm[0], nrm[1], nrm[2]);
-        *o = [a[0] * s[0], a[1] * s[1], a[2] * s[2]];
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn vector_build_equals_the_baseline_build_bit_for_bit() {
+        if !std::arch::is_x86_feature_detected!("avx2") {
+            return;
+        }
+        let light = FoldedLight::new(&std::array::from_fn(|k| {
+            [0.5, -0.25, 1.0].map(|c: f32| c / (1 + k) as f32)
+        }));
+        let normals: Vec<[f32; 3]> = (0..37)
+            .map(|i| {
+                let t = i as f32 * 0.37;
+                let v = [t.sin() * t.cos(), t.sin() * t.sin(), t.cos()];
+                let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                v.map(|x| x / l)
+            })
+            .collect();
+        let albedo = vec![[0.7, 0.5, 0.4]; 37];
+        let (mut a, mut b) = (vec![[0.0; 3]; 37], vec![[0.0; 3]; 37]);
+        shade_rows_generic(&light, &albedo, &normals, &mut a);
+        // SAFETY: AVX2 checked above.
+        unsafe { shade_rows_avx2(&light, &albedo, &normals, &mut b) };
+        assert_eq!(a, b);
     }
 }
