@@ -17,8 +17,10 @@
 //!   stored (the reference).
 
 mod quantized;
+mod separable;
 
 use quantized::QuantizedBasis;
+use separable::SeparableBasis;
 
 use crate::coeffs::{CoeffLayout, Coefficients};
 use crate::error::ModelError;
@@ -176,12 +178,33 @@ impl PartialEq for MorphableModel {
 struct FaceBases {
     identity: QuantizedBasis,
     expression: QuantizedBasis,
-    albedo: QuantizedBasis,
+    albedo: AlbedoBasis,
+}
+
+/// The albedo copy: a field times a colour per mode when the model's modes are (ICT's
+/// Gaussian-process albedo), a plain 16-bit copy otherwise.
+#[derive(Clone, Debug)]
+enum AlbedoBasis {
+    Separable(SeparableBasis),
+    Plain(QuantizedBasis),
 }
 
 impl FaceBases {
     fn new(meta: &ModelMeta, parts: &ModelParts) -> Self {
-        let (n3, nf3) = (meta.vertex_count * 3, meta.face_vertex_count * 3);
+        let (n3, nf, nf3) = (
+            meta.vertex_count * 3,
+            meta.face_vertex_count,
+            meta.face_vertex_count * 3,
+        );
+        let albedo = match SeparableBasis::try_new(&parts.albedo_basis, meta.albedo.count, nf) {
+            Some(b) => AlbedoBasis::Separable(b),
+            None => AlbedoBasis::Plain(QuantizedBasis::new(
+                &parts.albedo_basis,
+                meta.albedo.count,
+                nf3,
+                nf3,
+            )),
+        };
         Self {
             identity: QuantizedBasis::new(&parts.identity_basis, meta.identity.count, n3, nf3),
             expression: QuantizedBasis::new(
@@ -190,7 +213,24 @@ impl FaceBases {
                 n3,
                 nf3,
             ),
-            albedo: QuantizedBasis::new(&parts.albedo_basis, meta.albedo.count, nf3, nf3),
+            albedo,
+        }
+    }
+}
+
+impl AlbedoBasis {
+    fn error_bound(&self, w: &[f32]) -> f32 {
+        match self {
+            AlbedoBasis::Separable(b) => b.error_bound(w),
+            AlbedoBasis::Plain(b) => b.error_bound(w),
+        }
+    }
+
+    /// `acc[v] += Σ_k w_k·mode_k[v]` over the face area (`acc.len()` vertices).
+    fn accumulate(&self, acc: &mut [[f32; 3]], w: &[f32]) {
+        match self {
+            AlbedoBasis::Separable(b) => b.accumulate(acc, w),
+            AlbedoBasis::Plain(b) => b.accumulate(acc.as_flattened_mut(), w),
         }
     }
 }
@@ -488,10 +528,12 @@ impl MorphableModel {
         out.clear();
         out.extend_from_slice(&self.mean_albedo()[..n]);
         let nf = self.meta.face_vertex_count;
-        let acc = &mut as_flat_mut(out)[..nf * 3];
         match extent {
-            Extent::Face => self.face_bases.albedo.accumulate(acc, coeffs),
-            Extent::Full => accumulate(acc, &self.parts.albedo_basis, nf * 3, coeffs),
+            Extent::Face => self.face_bases.albedo.accumulate(&mut out[..nf], coeffs),
+            Extent::Full => {
+                let acc = &mut as_flat_mut(out)[..nf * 3];
+                accumulate(acc, &self.parts.albedo_basis, nf * 3, coeffs)
+            }
         }
         Ok(())
     }

@@ -2,8 +2,9 @@
 //! [`Extent::Face`](super::Extent::Face) evaluations stream instead of the f32 file data.
 //!
 //! Each mode is stored as `i16` values times one f32 scale per mode (`scale = max|x| / 32767`),
-//! so a value is off by at most `scale / 2` and a weighted sum `Σ w_k·mode_k` by at most
-//! `Σ |w_k|·scale_k / 2` ([`QuantizedBasis::error_bound`]). The scale is folded into the
+//! so a value is off by at most half a step (plus the f32 rounding of `x / scale`,
+//! [`STEP_ERROR`]) and a weighted sum `Σ w_k·mode_k` by at most `Σ |w_k|·scale_k·0.502`
+//! ([`QuantizedBasis::error_bound`]). The scale is folded into the
 //! weight, so the inner loop is an axpy over `i16 → f32` — half the bytes of the f32 bases,
 //! which is what the evaluation is bound by (docs/decisions/0102-quantized-face-bases.md).
 //! The f32 bases stay the reference: they are what the file holds and what
@@ -11,6 +12,10 @@
 
 /// Largest stored magnitude: symmetric, so that `-x` quantises to `-q(x)`.
 const Q_MAX: f32 = i16::MAX as f32;
+
+/// Largest error of one stored value, in steps: half a step from rounding, plus the f32
+/// rounding of `x / step` (< 32767 · 2⁻²⁴ ≈ 0.002 steps).
+pub(crate) const STEP_ERROR: f32 = 0.502;
 
 /// Modes `[K, len]` of a mode-major basis at 16 bits, one scale per mode.
 #[derive(Clone)]
@@ -71,8 +76,18 @@ impl QuantizedBasis {
     pub(crate) fn error_bound(&self, w: &[f32]) -> f32 {
         w.iter()
             .zip(&self.scales)
-            .map(|(w, s)| 0.5 * w.abs() * s)
+            .map(|(w, s)| STEP_ERROR * w.abs() * s)
             .sum()
+    }
+
+    /// The f32 value of one step of mode `k`.
+    pub(crate) fn step(&self, k: usize) -> f32 {
+        self.scales[k]
+    }
+
+    /// The stored values of mode `k`.
+    pub(crate) fn mode(&self, k: usize) -> &[i16] {
+        &self.values[k * self.len..(k + 1) * self.len]
     }
 
     /// `acc[i] += Σ_k w_k·mode_k[i]` for `i < acc.len() ≤ len`; zero weights are skipped.
