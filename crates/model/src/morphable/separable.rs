@@ -75,10 +75,11 @@ impl SeparableBasis {
     /// Largest deviation of `Σ w_k·mode_k` from the same sum over the f32 basis.
     pub(crate) fn error_bound(&self, w: &[f32]) -> f32 {
         w.iter()
+            .zip(self.colours.iter().zip(&self.residuals))
             .enumerate()
-            .map(|(k, wk)| {
-                let e = self.colours[k].iter().fold(0.0f32, |m, x| m.max(x.abs()));
-                wk.abs() * (STEP_ERROR * self.fields.step(k) * e + self.residuals[k])
+            .map(|(k, (wk, (colour, residual)))| {
+                let e = colour.iter().fold(0.0f32, |m, x| m.max(x.abs()));
+                wk.abs() * (STEP_ERROR * self.fields.step(k) * e + residual)
             })
             .sum()
     }
