@@ -221,6 +221,9 @@ mod tests {
         assert!(SeparableBasis::try_new(&basis, modes, n).is_some());
         basis[(n + 7) * 3 + 1] += 0.01;
         assert!(SeparableBasis::try_new(&basis, modes, n).is_none());
+        // Extra coefficients do not count (and do not index past the modes).
+        let b = SeparableBasis::try_new(&separable(modes, n), modes, n).unwrap();
+        assert_eq!(b.error_bound(&[1.0; 5]), b.error_bound(&[1.0; 3]));
         // Too short a basis is refused rather than read out of bounds.
         assert!(SeparableBasis::try_new(&basis[..10], modes, n).is_none());
     }
