@@ -1,6 +1,7 @@
 //! Coefficients → face-area geometry and colour for the ICT model (DESIGN §9: coefficients →
-//! lit mesh < 1 ms on one core). `stream_reference` reads the same bytes as a dense
-//! `shape_face` with a plain sum, so the ratio shows how close to memory bandwidth we are.
+//! lit mesh < 1 ms on one core). `stream_reference` copies the f32 bytes that a dense
+//! `shape_face` read before the face area was evaluated from 16-bit bases: a fixed
+//! same-run reference to compare runs by.
 //!
 //! Times are CPU time of the benchmark thread (see `CpuTime`).
 //!
@@ -12,7 +13,7 @@ use std::time::Duration;
 
 use criterion::measurement::{Measurement, ValueFormatter, WallTime};
 use criterion::{Criterion, criterion_group, criterion_main};
-use facerecon_model::{Coefficients, Extent, MorphableModel, ict};
+use facerecon_model::{Coefficients, Extent, MorphableModel, ict, scene};
 
 /// Thread CPU time: the build machines are shared (load ≫ cores), so wall time mostly
 /// measures the scheduler; CPU time of the benchmark thread is what one core spends.
@@ -96,6 +97,16 @@ fn bench(c: &mut Criterion<CpuTime>) {
     });
     g.bench_function("albedo_face", |b| {
         b.iter(|| m.albedo(black_box(&tex), Extent::Face).unwrap())
+    });
+    // SH shading of the face area (normals of a face, a light with all 25 terms non-zero).
+    let face = m.shape(&id, &sparse_ex, Extent::Face).unwrap();
+    let normals = scene::vertex_normals(&face, m.extent_triangles(Extent::Face));
+    let albedo = m.albedo(&tex, Extent::Face).unwrap();
+    let light: [[f32; 3]; scene::SH_COEFFS] =
+        std::array::from_fn(|k| [0.9, 0.8, 0.7].map(|c: f32| c / (1 + k) as f32));
+    let mut shaded = Vec::new();
+    g.bench_function("shade_face", |b| {
+        b.iter(|| scene::shade_into(black_box(&albedo), black_box(&normals), &light, &mut shaded))
     });
     // 16 different dense faces in one call (report per face = time / 16).
     let ids: Vec<Vec<f32>> = (0..16)

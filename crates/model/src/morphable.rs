@@ -9,7 +9,18 @@
 //!   rendering uses all vertices (the full head, coloured per region);
 //! * bases are mode-major (`[K, N, 3]`, a mode is one contiguous run of `3N` floats), so a
 //!   shape is a sum of axpys over contiguous memory; the albedo basis covers only the face
-//!   area (other regions have a constant colour in the mean albedo).
+//!   area (other regions have a constant colour in the mean albedo);
+//! * face-area evaluations ([`Extent::Face`]: the fitting and lit-mesh hot path) read a
+//!   16-bit copy of the bases built when the model is assembled (submodules `quantized` and
+//!   `separable`), within a stated bound of the f32 formula
+//!   ([`MorphableModel::shape_error_bound`], [`MorphableModel::albedo_error_bound`]);
+//!   [`Extent::Full`] evaluates the f32 bases as stored (the reference).
+
+mod quantized;
+mod separable;
+
+use quantized::QuantizedBasis;
+use separable::SeparableBasis;
 
 use crate::coeffs::{CoeffLayout, Coefficients};
 use crate::error::ModelError;
@@ -145,12 +156,83 @@ impl Mask {
 
 /// A loaded, validated morphable model. Construct with [`MorphableModel::load`],
 /// [`MorphableModel::from_bytes`], an importer, or [`MorphableModel::from_parts`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug)]
 pub struct MorphableModel {
     pub(crate) meta: ModelMeta,
     pub(crate) parts: ModelParts,
     /// One UV per vertex (the first corner that references it; seams keep one side).
     pub(crate) vertex_uvs: Vec<[f32; 2]>,
+    /// 16-bit face-area bases, derived from `parts` (what `Extent::Face` evaluates).
+    face_bases: FaceBases,
+}
+
+/// Two models are equal when their file contents are (everything else is derived).
+impl PartialEq for MorphableModel {
+    fn eq(&self, other: &Self) -> bool {
+        self.meta == other.meta && self.parts == other.parts
+    }
+}
+
+/// The face-area compute copies of the three bases.
+#[derive(Clone, Debug)]
+struct FaceBases {
+    identity: QuantizedBasis,
+    expression: QuantizedBasis,
+    albedo: AlbedoBasis,
+}
+
+/// The albedo copy: a field times a colour per mode when the model's modes are (ICT's
+/// Gaussian-process albedo), a plain 16-bit copy otherwise.
+#[derive(Clone, Debug)]
+enum AlbedoBasis {
+    Separable(SeparableBasis),
+    Plain(QuantizedBasis),
+}
+
+impl FaceBases {
+    fn new(meta: &ModelMeta, parts: &ModelParts) -> Self {
+        let (n3, nf, nf3) = (
+            meta.vertex_count * 3,
+            meta.face_vertex_count,
+            meta.face_vertex_count * 3,
+        );
+        let albedo = match SeparableBasis::try_new(&parts.albedo_basis, meta.albedo.count, nf) {
+            Some(b) => AlbedoBasis::Separable(b),
+            None => AlbedoBasis::Plain(QuantizedBasis::new(
+                &parts.albedo_basis,
+                meta.albedo.count,
+                nf3,
+                nf3,
+            )),
+        };
+        Self {
+            identity: QuantizedBasis::new(&parts.identity_basis, meta.identity.count, n3, nf3),
+            expression: QuantizedBasis::new(
+                &parts.expression_basis,
+                meta.expression.count,
+                n3,
+                nf3,
+            ),
+            albedo,
+        }
+    }
+}
+
+impl AlbedoBasis {
+    fn error_bound(&self, w: &[f32]) -> f32 {
+        match self {
+            AlbedoBasis::Separable(b) => b.error_bound(w),
+            AlbedoBasis::Plain(b) => b.error_bound(w),
+        }
+    }
+
+    /// `acc[v] += Σ_k w_k·mode_k[v]` over the face area (`acc.len()` vertices).
+    fn accumulate(&self, acc: &mut [[f32; 3]], w: &[f32]) {
+        match self {
+            AlbedoBasis::Separable(b) => b.accumulate(acc, w),
+            AlbedoBasis::Plain(b) => b.accumulate(acc.as_flattened_mut(), w),
+        }
+    }
 }
 
 /// The raw arrays of a model, as stored in the file (all flattened row-major).
@@ -187,10 +269,12 @@ impl MorphableModel {
     pub fn from_parts(meta: ModelMeta, parts: ModelParts) -> Result<Self, ModelError> {
         crate::format::validate(&meta, &parts)?;
         let vertex_uvs = vertex_uvs(&parts);
+        let face_bases = FaceBases::new(&meta, &parts);
         Ok(Self {
             meta,
             parts,
             vertex_uvs,
+            face_bases,
         })
     }
 
@@ -303,7 +387,23 @@ impl MorphableModel {
         Ok(())
     }
 
-    /// Shape `s̄ + Us·ws + Ue·we` for an extent, positions in mm.
+    /// Largest deviation (mm, per coordinate) of a face-area [`shape`](Self::shape) from the
+    /// same formula over the f32 bases, due to their 16-bit copy: `Σ |w_k|·step_k·0.502`
+    /// (half a step, plus the rounding of `x / step`; the f32 rounding of the sum, common to
+    /// both, is not included). Coefficients are not checked; extra ones are ignored.
+    pub fn shape_error_bound(&self, identity: &[f32], expression: &[f32]) -> f32 {
+        let b = &self.face_bases;
+        b.identity.error_bound(identity) + b.expression.error_bound(expression)
+    }
+
+    /// Like [`shape_error_bound`](Self::shape_error_bound) for a face-area albedo (linear RGB).
+    pub fn albedo_error_bound(&self, coeffs: &[f32]) -> f32 {
+        self.face_bases.albedo.error_bound(coeffs)
+    }
+
+    /// Shape `s̄ + Us·ws + Ue·we` for an extent, positions in mm. The face area evaluates
+    /// the 16-bit bases (within [`shape_error_bound`](Self::shape_error_bound) of the f32
+    /// formula: for ICT at ±3σ measured ≤ 3.4 µm, bound ≤ 12 µm), the full mesh the f32 bases.
     pub fn shape(
         &self,
         identity: &[f32],
@@ -330,15 +430,23 @@ impl MorphableModel {
         out.clear();
         out.extend_from_slice(&self.mean_shape()[..n]);
         let acc = as_flat_mut(out);
-        accumulate(acc, &self.parts.identity_basis, stride, identity);
-        accumulate(acc, &self.parts.expression_basis, stride, expression);
+        match extent {
+            Extent::Face => {
+                self.face_bases.identity.accumulate(acc, identity);
+                self.face_bases.expression.accumulate(acc, expression);
+            }
+            Extent::Full => {
+                accumulate(acc, &self.parts.identity_basis, stride, identity);
+                accumulate(acc, &self.parts.expression_basis, stride, expression);
+            }
+        }
         Ok(())
     }
 
-    /// Shapes of many faces at once (`identity[b]`, `expression[b]` for face b). Each basis
-    /// mode is streamed from memory once per block of vertices for the whole batch instead
-    /// of once per face, so the per-face cost drops from memory-bound towards compute-bound
-    /// (see docs/bench/model.md).
+    /// Shapes of many faces at once (`identity[b]`, `expression[b]` for face b), equal to
+    /// [`shape`](Self::shape) of each. Each basis mode is streamed from memory once per block
+    /// of vertices for the whole batch instead of once per face, so the per-face cost drops
+    /// from memory-bound towards compute-bound (see docs/bench/model.md).
     pub fn shape_batch(
         &self,
         identity: &[&[f32]],
@@ -363,10 +471,20 @@ impl MorphableModel {
             .iter()
             .map(|_| self.mean_shape()[..n].to_vec())
             .collect();
-        /// Floats per block: 16 KB of one mode, reused from L1 for every face.
+        /// Values per block: 16 KB of one f32 mode (8 KB of a 16-bit one), reused from L1/L2
+        /// for every face.
         const BLOCK: usize = 4096;
         for start in (0..n3).step_by(BLOCK) {
             let end = (start + BLOCK).min(n3);
+            if extent == Extent::Face {
+                let fb = &self.face_bases;
+                for (out, (id, ex)) in outs.iter_mut().zip(identity.iter().zip(expression)) {
+                    let acc = &mut out.as_flattened_mut()[start..end];
+                    fb.identity.accumulate_at(acc, start, id);
+                    fb.expression.accumulate_at(acc, start, ex);
+                }
+                continue;
+            }
             for (basis, weights) in [
                 (&self.parts.identity_basis, identity),
                 (&self.parts.expression_basis, expression),
@@ -391,6 +509,8 @@ impl MorphableModel {
 
     /// Albedo `ā + Ut·wt` for an extent, linear RGB (not clamped: the range prior of
     /// Eq. 2.39 is the fitter's job). Outside the face area the colour is the region's constant.
+    /// As for [`shape`](Self::shape), the face area evaluates the 16-bit basis (within
+    /// [`albedo_error_bound`](Self::albedo_error_bound)), the full mesh the f32 basis.
     pub fn albedo(&self, coeffs: &[f32], extent: Extent) -> Result<Vec<[f32; 3]>, ModelError> {
         let mut out = Vec::new();
         self.albedo_into(coeffs, extent, &mut out)?;
@@ -409,8 +529,13 @@ impl MorphableModel {
         out.clear();
         out.extend_from_slice(&self.mean_albedo()[..n]);
         let nf = self.meta.face_vertex_count;
-        let acc = &mut as_flat_mut(out)[..nf * 3];
-        accumulate(acc, &self.parts.albedo_basis, nf * 3, coeffs);
+        match extent {
+            Extent::Face => self.face_bases.albedo.accumulate(&mut out[..nf], coeffs),
+            Extent::Full => {
+                let acc = &mut as_flat_mut(out)[..nf * 3];
+                accumulate(acc, &self.parts.albedo_basis, nf * 3, coeffs)
+            }
+        }
         Ok(())
     }
 

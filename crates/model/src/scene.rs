@@ -8,8 +8,9 @@
 //!    [`Pose::apply`] for positions, [`Pose::rotate`] for normals.
 //! 2. normals: [`vertex_normals`] (area-weighted, computed in whichever space the positions
 //!    are; rotating model-space normals equals recomputing them in camera space).
-//! 3. colour (Eq. 3.1): [`shade`] — `C_j = A_j ⊙ (w_iᵀ φ(n_j))` with the real SH basis
-//!    [`sh_basis`] of bands 0–4; [`lit_light`] is the uniform "lit" start.
+//! 3. colour (Eq. 3.1): [`shade`] / [`shade_into`] — `C_j = A_j ⊙ (w_iᵀ φ(n_j))` with the
+//!    real SH basis [`sh_basis`] of bands 0–4 (vectorised loop in `shading`);
+//!    [`lit_light`] is the uniform "lit" start.
 //! 4. camera space → clip space → pixels (Eq. 2.22–2.23): [`Camera`]. The renderer
 //!    rasterises the clip-space positions of [`Camera::clip_zo`]; landmarks go straight to
 //!    pixels with [`Camera::project`] / [`project_points`].
@@ -156,50 +157,93 @@ pub const fn sh_index(l: usize, m: isize) -> usize {
     (l * l + l).wrapping_add_signed(m)
 }
 
+/// Normalisation constant of each basis function: `sh_basis(n)[k] = SH_NORM[k] ·
+/// sh_polynomials(n)[k]`.
+const SH_NORM: [f32; SH_COEFFS] = [
+    0.282_094_79, // l = 0
+    0.488_602_5,  // l = 1
+    0.488_602_5,
+    0.488_602_5,
+    1.092_548_4, // l = 2
+    1.092_548_4,
+    0.315_391_57,
+    1.092_548_4,
+    0.546_274_2,
+    0.590_043_6, // l = 3
+    2.890_611_4,
+    0.457_045_8,
+    0.373_176_33,
+    0.457_045_8,
+    1.445_305_7,
+    0.590_043_6,
+    2.503_343, // l = 4
+    1.770_130_8,
+    0.946_174_7,
+    0.669_046_5,
+    0.105_785_55,
+    0.669_046_5,
+    0.473_087_35,
+    1.770_130_8,
+    0.625_835_7,
+];
+
+/// The polynomial part of each basis function (see [`sh_basis`]), with the shared
+/// subexpressions computed once; one definition for [`sh_basis`] and the shading loop.
+#[inline(always)]
+fn sh_polynomials(x: f32, y: f32, z: f32) -> [f32; SH_COEFFS] {
+    let (x2, y2, z2) = (x * x, y * y, z * z);
+    let (xy, yz, xz) = (x * y, y * z, x * z);
+    let d = x2 - y2;
+    let a = 3.0 * x2 - y2;
+    let b = x2 - 3.0 * y2;
+    let f5 = 5.0 * z2 - 1.0;
+    let f7 = 7.0 * z2 - 1.0;
+    let g7 = 7.0 * z2 - 3.0;
+    [
+        1.0,
+        y,
+        z,
+        x,
+        xy,
+        yz,
+        3.0 * z2 - 1.0,
+        xz,
+        d,
+        y * a,
+        xy * z,
+        y * f5,
+        z * (5.0 * z2 - 3.0),
+        x * f5,
+        z * d,
+        x * b,
+        xy * d,
+        yz * a,
+        xy * f7,
+        yz * g7,
+        (35.0 * z2 - 30.0) * z2 + 3.0,
+        xz * g7,
+        d * f7,
+        xz * b,
+        x2 * b - y2 * a,
+    ]
+}
+
 /// The 25 real orthonormal spherical harmonics of bands 0–4 at a unit direction `n`,
 /// ordered by [`sh_index`] (l = 0; l = 1: m = −1, 0, 1; …).
 ///
 /// Convention: `Y_lm = √2·K_l^m·P_l^m(cosθ)·cos(mφ)` for m > 0, `√2·K_l^|m|·P_l^|m|(cosθ)·
 /// sin(|m|φ)` for m < 0, `K_l^0·P_l^0` for m = 0, with `θ` from +Z, `φ` from +X towards
 /// +Y, and the associated Legendre functions *without* the Condon–Shortley phase — so that,
-/// e.g., `Y_1,−1 ∝ y`, `Y_1,0 ∝ z`, `Y_1,1 ∝ x` (the usual graphics polynomials).
+/// e.g., `Y_1,−1 ∝ y`, `Y_1,0 ∝ z`, `Y_1,1 ∝ x` (the usual graphics polynomials:
+/// l = 2: `xy, yz, 3z²−1, xz, x²−y²`; l = 3: `y(3x²−y²), xyz, y(5z²−1), z(5z²−3),
+/// x(5z²−1), z(x²−y²), x(x²−3y²)`; l = 4: `xy(x²−y²), yz(3x²−y²), xy(7z²−1), yz(7z²−3),
+/// 35z⁴−30z²+3, xz(7z²−3), (x²−y²)(7z²−1), xz(x²−3y²), x²(x²−3y²)−y²(3x²−y²)`, each
+/// times its normalisation constant).
 /// Orthonormal over the unit sphere: `∫ Y_a Y_b dΩ = δ_ab`.
 /// `n` is used as given (callers pass unit vectors).
 pub fn sh_basis(n: [f32; 3]) -> [f32; SH_COEFFS] {
-    let (x, y, z) = (n[0], n[1], n[2]);
-    let (x2, y2, z2) = (x * x, y * y, z * z);
-    [
-        // l = 0
-        0.282_094_79,
-        // l = 1
-        0.488_602_5 * y,
-        0.488_602_5 * z,
-        0.488_602_5 * x,
-        // l = 2
-        1.092_548_4 * x * y,
-        1.092_548_4 * y * z,
-        0.315_391_57 * (3.0 * z2 - 1.0),
-        1.092_548_4 * x * z,
-        0.546_274_2 * (x2 - y2),
-        // l = 3
-        0.590_043_6 * y * (3.0 * x2 - y2),
-        2.890_611_4 * x * y * z,
-        0.457_045_8 * y * (5.0 * z2 - 1.0),
-        0.373_176_33 * z * (5.0 * z2 - 3.0),
-        0.457_045_8 * x * (5.0 * z2 - 1.0),
-        1.445_305_7 * z * (x2 - y2),
-        0.590_043_6 * x * (x2 - 3.0 * y2),
-        // l = 4
-        2.503_343 * x * y * (x2 - y2),
-        1.770_130_8 * y * z * (3.0 * x2 - y2),
-        0.946_174_7 * x * y * (7.0 * z2 - 1.0),
-        0.669_046_5 * y * z * (7.0 * z2 - 3.0),
-        0.105_785_55 * (35.0 * z2 * z2 - 30.0 * z2 + 3.0),
-        0.669_046_5 * x * z * (7.0 * z2 - 3.0),
-        0.473_087_35 * (x2 - y2) * (7.0 * z2 - 1.0),
-        1.770_130_8 * x * z * (x2 - 3.0 * y2),
-        0.625_835_7 * (x2 * (x2 - 3.0 * y2) - y2 * (3.0 * x2 - y2)),
-    ]
+    let p = sh_polynomials(n[0], n[1], n[2]);
+    std::array::from_fn(|k| SH_NORM[k] * p[k])
 }
 
 /// The uniform "lit" light: `w_00 = √(4π)` per channel, all else 0, so that
@@ -229,14 +273,29 @@ pub fn shade(
     normals: &[[f32; 3]],
     light: &[[f32; 3]; SH_COEFFS],
 ) -> Vec<[f32; 3]> {
-    albedo
-        .iter()
-        .zip(normals)
-        .map(|(a, n)| {
-            let s = sh_shading(*n, light);
-            [a[0] * s[0], a[1] * s[1], a[2] * s[2]]
-        })
-        .collect()
+    let mut out = Vec::new();
+    shade_into(albedo, normals, light, &mut out);
+    out
+}
+
+/// [`shade`] into a reused buffer. The light is folded with the basis constants once per
+/// call, so a vertex costs its 25 basis polynomials and three 25-term dot products; equal
+/// to [`sh_shading`] per vertex up to f32 rounding (a few ULPs of the shading factor).
+pub fn shade_into(
+    albedo: &[[f32; 3]],
+    normals: &[[f32; 3]],
+    light: &[[f32; 3]; SH_COEFFS],
+    out: &mut Vec<[f32; 3]>,
+) {
+    let n = albedo.len().min(normals.len());
+    out.clear();
+    out.resize(n, [0.0; 3]);
+    shading::shade_rows(
+        &shading::FoldedLight::new(light),
+        &albedo[..n],
+        &normals[..n],
+        out,
+    );
 }
 
 // ---------------------------------------------------------------------------------------
@@ -344,6 +403,8 @@ pub fn project_points(
         .map(|p| camera.project(*p, width, height).unwrap_or([f32::NAN; 2]))
         .collect()
 }
+
+mod shading;
 
 #[cfg(test)]
 mod tests;

@@ -4,6 +4,11 @@
 use facerecon_model::ict;
 use facerecon_model::{Coefficients, Extent, Mask, MorphableModel, Prior, obj};
 
+/// Stated bounds of the 16-bit face-area evaluation at up to ±3σ (all blendshapes at 1):
+/// shape in mm, albedo in linear-RGB units (docs/decisions/0102-quantized-face-bases.md).
+const SHAPE_BOUND_MM: f32 = 0.012;
+const ALBEDO_BOUND: f32 = 8e-5;
+
 fn upstream_obj(name: &str) -> Vec<[f32; 3]> {
     let p = ict::default_source_dir().join("FaceXModel").join(name);
     let text = std::fs::read_to_string(&p).unwrap();
@@ -102,7 +107,10 @@ fn identity000_obj_equals_neutral_plus_first_mode() {
     );
     let face = m.shape(&id, &ex, Extent::Face).unwrap();
     assert_eq!(face.len(), 9_409);
-    assert_eq!(&face[..], &full[..9_409]);
+    // The face area is evaluated from the 16-bit bases: the full mesh's prefix within the bound.
+    let bound = m.shape_error_bound(&id, &ex);
+    assert!(bound > 0.0 && bound < 1e-3);
+    assert!(max_err(&face, &full[..9_409]) <= bound + 1e-5);
     // The mode is not trivially zero.
     assert!(max_err(&face, &m.mean_shape()[..9_409]) > 1.0);
 }
@@ -186,7 +194,9 @@ fn instance_albedo_and_file_round_trip() {
     assert_eq!(mesh.uvs.as_ref().unwrap().len(), 9_409);
     let full = m.instance_full(&c).unwrap();
     assert_eq!(full.positions.len(), m.vertex_count());
-    assert_eq!(&full.positions[..9_409], &mesh.positions[..]);
+    // Face area from the 16-bit bases, full mesh from the f32 bases: equal within the bound.
+    let bound = m.shape_error_bound(&c.identity, &c.expression);
+    assert!(max_err(&full.positions[..9_409], &mesh.positions) <= bound + 1e-5);
 
     let bytes = m.to_bytes().unwrap();
     let back = MorphableModel::from_bytes(&bytes).unwrap();
@@ -285,6 +295,8 @@ fn shape_and_albedo_with_many_modes_match_a_naive_sum() {
         .map(|k| ((k * 7 % 11) as f32 - 5.0) * 0.3)
         .collect();
     let got = m.shape(&id, &ex, Extent::Face).unwrap();
+    // The face area is evaluated from the 16-bit bases (stated bound + f32 rounding).
+    let tol = m.shape_error_bound(&id, &ex) as f64 + 1e-4;
     let alb = m.albedo(&tex, Extent::Full).unwrap();
     let nf = m.face_vertex_count();
     for v in (0..nf).step_by(97) {
@@ -296,7 +308,7 @@ fn shape_and_albedo_with_many_modes_match_a_naive_sum() {
             for (k, w) in ex.iter().enumerate() {
                 s += *w as f64 * m.expression_mode(k)[v][c] as f64;
             }
-            assert!((got[v][c] as f64 - s).abs() < 1e-3, "vertex {v}");
+            assert!((got[v][c] as f64 - s).abs() < tol, "vertex {v}");
             let mut a = m.mean_albedo()[v][c] as f64;
             for (k, w) in tex.iter().enumerate() {
                 a += *w as f64 * m.albedo_mode(k)[v][c] as f64;
@@ -369,4 +381,78 @@ fn instance_into_reuses_a_mesh_and_equals_instance() {
         .unwrap();
         assert!(mesh == fresh, "step {step}");
     }
+}
+
+/// The face area is evaluated from a 16-bit copy of the bases; the f32 bases are the
+/// reference. Random coefficients at up to ±3σ (blendshapes in [0, 1]), and the all-+3σ
+/// worst case, against a plain f64 sum over the f32 modes at every face vertex.
+#[test]
+fn face_area_evaluation_stays_within_its_stated_bound_of_the_f32_sum() {
+    let m = ict::load_default().unwrap();
+    let l = m.layout();
+    let nf = m.face_vertex_count();
+    let mut state = 4242u64;
+    let mut rnd = || {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (state >> 11) as f32 / (1u64 << 53) as f32
+    };
+    let mut worst = (0.0f32, 0.0f32);
+    for trial in 0..4 {
+        let (id, ex, tex): (Vec<f32>, Vec<f32>, Vec<f32>) = if trial == 0 {
+            (
+                vec![3.0; l.identity],
+                vec![1.0; l.expression],
+                vec![3.0; l.albedo],
+            )
+        } else {
+            (
+                (0..l.identity).map(|_| 6.0 * rnd() - 3.0).collect(),
+                (0..l.expression).map(|_| rnd()).collect(),
+                (0..l.albedo).map(|_| 6.0 * rnd() - 3.0).collect(),
+            )
+        };
+        let shape = m.shape(&id, &ex, Extent::Face).unwrap();
+        let alb = m.albedo(&tex, Extent::Face).unwrap();
+        let (sb, ab) = (m.shape_error_bound(&id, &ex), m.albedo_error_bound(&tex));
+        // The stated figures (docs/decisions/0102-quantized-face-bases.md).
+        assert!(
+            sb < SHAPE_BOUND_MM && ab < ALBEDO_BOUND,
+            "bounds {sb} mm, {ab}"
+        );
+        let (mut es, mut ea) = (0.0f32, 0.0f32);
+        for v in 0..nf {
+            for c in 0..3 {
+                let mut s = m.mean_shape()[v][c] as f64;
+                for (k, w) in id.iter().enumerate() {
+                    s += *w as f64 * m.identity_mode(k)[v][c] as f64;
+                }
+                for (k, w) in ex.iter().enumerate() {
+                    s += *w as f64 * m.expression_mode(k)[v][c] as f64;
+                }
+                let mut a = m.mean_albedo()[v][c] as f64;
+                for (k, w) in tex.iter().enumerate() {
+                    a += *w as f64 * m.albedo_mode(k)[v][c] as f64;
+                }
+                es = es.max((shape[v][c] as f64 - s).abs() as f32);
+                ea = ea.max((alb[v][c] as f64 - a).abs() as f32);
+            }
+        }
+        // f32 rounding of the sums (what the f32 path has too): under 1 µm, 1e-5.
+        assert!(
+            es <= sb + 1e-3,
+            "trial {trial}: shape off by {es} mm, bound {sb}"
+        );
+        assert!(
+            ea <= ab + 1e-5,
+            "trial {trial}: albedo off by {ea}, bound {ab}"
+        );
+        worst = (worst.0.max(es), worst.1.max(ea));
+        println!(
+            "trial {trial}: shape max |Δ| {es:.2e} mm (bound {sb:.2e}), albedo {ea:.2e} (bound {ab:.2e})"
+        );
+    }
+    // The quantisation is visible at all (the test compares two different evaluations).
+    assert!(worst.0 > 0.0 && worst.1 > 0.0);
 }

@@ -5,41 +5,94 @@
 //! * `sample/*` — one complete synthetic sample (draw, render the full head, background,
 //!   ground truth; no file writing), one core, at fixed image sizes; samples/s = 1 / time.
 //!
+//! * `cpu/lit_face*` — the same two lit-face cases timed in CPU time of the benchmark thread
+//!   (`CLOCK_THREAD_CPUTIME_ID`): on a shared machine wall time mostly measures the scheduler.
+//!
 //! `cargo bench -p facerecon-synth --bench synth` (`FACERECON_MODEL_FILE=…` to use a model
 //! file instead of building the default model).
 
+use criterion::measurement::{Measurement, ValueFormatter, WallTime};
 use criterion::{Criterion, criterion_group, criterion_main};
+use facerecon_model::{Coefficients, MorphableModel};
 use facerecon_synth::lit::LitFace;
 use facerecon_synth::{Generator, SynthConfig};
 use std::hint::black_box;
+use std::sync::Arc;
+use std::time::Duration;
 
-fn bench(c: &mut Criterion) {
+fn model() -> Arc<MorphableModel> {
     // A model file may be named explicitly (machines without the ICT-FaceKit folder).
-    let model = match std::env::var_os("FACERECON_MODEL_FILE") {
-        Some(p) => std::sync::Arc::new(facerecon_model::MorphableModel::load(p).expect("model file")),
+    match std::env::var_os("FACERECON_MODEL_FILE") {
+        Some(p) => Arc::new(MorphableModel::load(p).expect("model file")),
         None => facerecon_model::ict::load_default().expect("default model"),
-    };
-    let g = Generator::new(&model, SynthConfig::default()).unwrap();
-    // A realistic coefficient set: a drawn sample's (sparse expression, full identity/albedo).
+    }
+}
+
+/// A realistic coefficient set — a drawn sample's (sparse expression, full identity and
+/// albedo) — and the same with every expression weight non-zero (the dense worst case).
+fn lit_cases(model: &MorphableModel) -> [(&'static str, Coefficients); 2] {
+    let g = Generator::new(model, SynthConfig::default()).unwrap();
     let coeffs = g.sample(0, 1).unwrap().truth.coefficients;
-    let mut lit = LitFace::default();
-    c.bench_function("lit_face", |b| {
-        b.iter(|| {
-            lit.update(&model, black_box(&coeffs)).unwrap();
-            black_box(&lit.colors);
-        })
-    });
-    // The same with every expression weight non-zero (the dense worst case).
     let mut dense = coeffs.clone();
     for w in &mut dense.expression {
         *w = w.max(0.05);
     }
-    c.bench_function("lit_face_dense_expression", |b| {
-        b.iter(|| {
-            lit.update(&model, black_box(&dense)).unwrap();
-            black_box(&lit.colors);
-        })
-    });
+    [("lit_face", coeffs), ("lit_face_dense_expression", dense)]
+}
+
+fn bench_lit<M: Measurement + 'static>(c: &mut Criterion<M>, prefix: &str, model: &MorphableModel) {
+    let mut lit = LitFace::default();
+    for (name, coeffs) in lit_cases(model) {
+        c.bench_function(&format!("{prefix}{name}"), |b| {
+            b.iter(|| {
+                lit.update(model, black_box(&coeffs)).unwrap();
+                black_box(&lit.colors);
+            })
+        });
+    }
+}
+
+/// Thread CPU time as a criterion measurement.
+struct CpuTime;
+
+fn thread_cpu() -> Duration {
+    let mut t = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    // SAFETY: valid pointer to a timespec; CLOCK_THREAD_CPUTIME_ID is always available on Linux.
+    unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut t) };
+    Duration::new(t.tv_sec as u64, t.tv_nsec as u32)
+}
+
+impl Measurement for CpuTime {
+    type Intermediate = Duration;
+    type Value = Duration;
+    fn start(&self) -> Duration {
+        thread_cpu()
+    }
+    fn end(&self, i: Duration) -> Duration {
+        thread_cpu() - i
+    }
+    fn add(&self, a: &Duration, b: &Duration) -> Duration {
+        *a + *b
+    }
+    fn zero(&self) -> Duration {
+        Duration::ZERO
+    }
+    fn to_f64(&self, v: &Duration) -> f64 {
+        v.as_nanos() as f64
+    }
+    fn formatter(&self) -> &dyn ValueFormatter {
+        static WALL: WallTime = WallTime;
+        WALL.formatter()
+    }
+}
+
+fn bench_cpu(c: &mut Criterion<CpuTime>) {
+    bench_lit(c, "cpu/", &model());
+}
+
+fn bench(c: &mut Criterion) {
+    let model = model();
+    bench_lit(c, "", &model);
 
     let mut group = c.benchmark_group("sample");
     group.sample_size(10);
@@ -65,4 +118,9 @@ fn bench(c: &mut Criterion) {
 }
 
 criterion_group!(benches, bench);
-criterion_main!(benches);
+criterion_group! {
+    name = cpu;
+    config = Criterion::default().with_measurement(CpuTime);
+    targets = bench_cpu
+}
+criterion_main!(benches, cpu);

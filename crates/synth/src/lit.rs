@@ -5,7 +5,7 @@
 //! allocates nothing after the first call. Normals are accumulated in f32 (the renderer's
 //! precision; `scene::vertex_normals` uses f64 as the reference, compared in the tests).
 
-use facerecon_model::scene::{Pose, sh_basis};
+use facerecon_model::scene::{self, Pose};
 use facerecon_model::{Coefficients, Extent, Mesh, MorphableModel};
 
 use crate::SynthError;
@@ -50,22 +50,10 @@ impl LitFace {
                 acc[2] += f.z;
             }
         }
-        for nrm in &mut self.normals {
-            *nrm = glam::Vec3::from(*nrm).normalize_or_zero().to_array();
-        }
+        normalize_or_zero(&mut self.normals);
 
         model.albedo_into(&c.albedo, Extent::Face, &mut self.albedo).map_err(SynthError::model)?;
-        self.colors.clear();
-        self.colors.extend(self.albedo.iter().zip(&self.normals).map(|(a, nrm)| {
-            let phi = sh_basis(*nrm);
-            let mut s = [0.0f32; 3];
-            for (ph, w) in phi.iter().zip(&c.light) {
-                s[0] += ph * w[0];
-                s[1] += ph * w[1];
-                s[2] += ph * w[2];
-            }
-            [a[0] * s[0], a[1] * s[1], a[2] * s[2]]
-        }));
+        scene::shade_into(&self.albedo, &self.normals, &c.light, &mut self.colors);
         Ok(())
     }
 
@@ -81,11 +69,28 @@ impl LitFace {
     }
 }
 
+/// `glam::Vec3::normalize_or_zero` on every vector (same arithmetic, same results), over
+/// structure-of-arrays blocks so that the square roots and divisions vectorise.
+fn normalize_or_zero(v: &mut [[f32; 3]]) {
+    const BLOCK: usize = 64;
+    for chunk in v.chunks_mut(BLOCK) {
+        let m = chunk.len();
+        let (mut x, mut y, mut z) = ([0.0f32; BLOCK], [0.0f32; BLOCK], [0.0f32; BLOCK]);
+        for i in 0..m {
+            [x[i], y[i], z[i]] = chunk[i];
+        }
+        for i in 0..m {
+            let r = 1.0 / (x[i] * x[i] + y[i] * y[i] + z[i] * z[i]).sqrt();
+            let ok = r.is_finite() && r > 0.0;
+            chunk[i] = if ok { [x[i] * r, y[i] * r, z[i] * r] } else { [0.0; 3] };
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::rng::Rng;
-    use facerecon_model::scene;
 
     #[test]
     fn matches_the_scene_reference_path() {
@@ -118,5 +123,21 @@ mod tests {
         assert!(max_diff(&lit.colors, &col) < 1e-4);
         let m = lit.to_mesh(&model);
         assert!(m.validate().is_ok());
+    }
+
+    #[test]
+    fn block_normalisation_equals_glam() {
+        let mut v: Vec<[f32; 3]> = (0..131)
+            .map(|i| {
+                let t = i as f32;
+                [t.sin() * 3.0, (t * 0.7).cos() * 1e-3, t * 0.01 - 0.5]
+            })
+            .collect();
+        v[5] = [0.0; 3];
+        v[70] = [1e-30, 0.0, 0.0];
+        v[71] = [f32::INFINITY, 0.0, 0.0];
+        let want: Vec<[f32; 3]> = v.iter().map(|x| glam::Vec3::from(*x).normalize_or_zero().to_array()).collect();
+        normalize_or_zero(&mut v);
+        assert_eq!(v, want);
     }
 }

@@ -406,3 +406,61 @@ fn plane_and_cube_corner_normals() {
     assert_eq!(validate_triangles(3, &[[0, 1, 2], [0, 1, 3]]), Some(1));
     assert_eq!(validate_triangles(3, &[[0, 1, 2]]), None);
 }
+
+#[test]
+fn shade_matches_the_legendre_oracle_for_every_length_and_reuses_its_buffer() {
+    // Random light (all 25 terms, per channel), random unit normals and albedo; lengths
+    // around the 8-vertex blocks of the vectorised loop. Reference: f64 sum over the
+    // independent associated-Legendre oracle.
+    let mut state = 987u64;
+    let mut rnd = || {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let mut light = [[0.0f32; 3]; SH_COEFFS];
+    for w in light.iter_mut().flatten() {
+        *w = (2.0 * rnd() - 1.0) as f32;
+    }
+    let mut out = vec![[9.0f32; 3]; 3];
+    for n in [0usize, 1, 7, 8, 9, 16, 1001] {
+        let angles: Vec<(f64, f64)> = (0..n)
+            .map(|_| ((1.0 - 2.0 * rnd()).acos(), 2.0 * PI * rnd()))
+            .collect();
+        let normals: Vec<[f32; 3]> = angles.iter().map(|&(t, p)| dir(t, p)).collect();
+        let albedo: Vec<[f32; 3]> = (0..n)
+            .map(|_| [rnd() as f32, rnd() as f32, rnd() as f32])
+            .collect();
+        shade_into(&albedo, &normals, &light, &mut out);
+        assert_eq!(out.len(), n);
+        for (j, &(theta, phi)) in angles.iter().enumerate() {
+            for c in 0..3 {
+                let mut s = 0.0f64;
+                for l in 0..=4u32 {
+                    for m in -(l as i32)..=(l as i32) {
+                        s += sh_oracle(l, m, theta, phi)
+                            * light[sh_index(l as usize, m as isize)][c] as f64;
+                    }
+                }
+                let want = albedo[j][c] as f64 * s;
+                assert!(
+                    (out[j][c] as f64 - want).abs() < 2e-5,
+                    "n={n} vertex {j} channel {c}: {} vs {want}",
+                    out[j][c]
+                );
+            }
+            // The per-vertex function gives the same colour up to f32 rounding.
+            let s = sh_shading(normals[j], &light);
+            for c in 0..3 {
+                assert!((out[j][c] - albedo[j][c] * s[c]).abs() < 1e-5);
+            }
+        }
+        assert_eq!(shade(&albedo, &normals, &light), out);
+    }
+    // The shorter input wins.
+    assert_eq!(
+        shade(&[[1.0; 3]; 5], &[[0.0, 0.0, 1.0]; 12], &light).len(),
+        5
+    );
+}
