@@ -55,7 +55,9 @@ pub fn run(args: DetectArgs) -> anyhow::Result<ExitCode> {
         .with_context(|| format!("loading the landmark model {}", args.landmark_model.display()))?;
     let front = FrontEnd::new(Box::new(detector), Box::new(predictor))
         .with_calibration(BoxCalibration::viola_jones_to_dlib())
-        .with_refinement(BoxFromLandmarks::dlib_68(), 2);
+        .with_refinement(BoxFromLandmarks::dlib_68(), 2)
+        // Boxes, landmarks and buckets only: no encoder crops to make.
+        .with_crops(false);
     let limits = DecodeLimits::default();
     let mut failed = 0;
     for (i, path) in args.images.iter().enumerate() {

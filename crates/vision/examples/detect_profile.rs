@@ -10,7 +10,7 @@
 use facerecon_vision::detect::integral::Integral;
 use facerecon_vision::detect::pyramid::{self, Grey};
 use facerecon_vision::detect::scan::{Compiled, Outcome};
-use facerecon_vision::detect::{DetectorParams, NamedCascade, ViolaJones};
+use facerecon_vision::detect::{DetectorParams, ViolaJones};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -56,7 +56,7 @@ fn main() {
     });
     println!("all cascades: CPU {cpu:.1} ms, wall {wall:.1} ms per call, {} faces", det.detect_faces(&img).len());
     for c in det.cascades() {
-        let one = ViolaJones::new(vec![NamedCascade { name: c.name.clone(), cascade: c.cascade.clone() }], params.clone()).unwrap();
+        let one = ViolaJones::new(vec![c.clone()], params.clone()).unwrap();
         let (cpu, wall) = per_call(20, || {
             one.detect_faces(&img);
         });

@@ -65,6 +65,8 @@ struct PhotoResult {
     iou: Option<f32>,
     /// IoU of the last pass's input box (3 passes) with dlib's HOG box, when dlib found the face.
     final_box_iou_hog: Option<f32>,
+    /// Landmark passes the product setting (up to 3) ran before the box settled.
+    passes_run: Option<usize>,
     yaw: f32,
 }
 
@@ -195,6 +197,7 @@ fn main() {
         let nme_uncalibrated_passes = best.as_ref().map(|d| [0, 1].map(|k| through(&uncal[k], d).0));
         let hog_det = refs.get(&p.path).map(|r| Detection { face_box: r.face_box(), score: 1.0, source: "dlib-hog".into() });
         let nme_hog_passes = hog_det.as_ref().map(|d| [0, 1].map(|k| through(&hog[k], d).0));
+        let passes_run = best.as_ref().map(|d| fronts[2].face(&img, d.clone()).expect("front end").landmark_passes);
         let final_box_iou_hog = match (best, &hog_det) {
             (Some(d), Some(h)) => Some(through(&fronts[2], d).1.iou(&h.face_box)),
             _ => None,
@@ -221,6 +224,7 @@ fn main() {
             source: best.as_ref().map(|d| d.source.clone()),
             iou: best.as_ref().map(|d| d.face_box.iou(&tbox)),
             final_box_iou_hog,
+            passes_run,
             yaw: yaw(&truth),
         })
     });
@@ -258,7 +262,17 @@ fn main() {
     }
 
     println!();
-    println!("Refinement passes (calibration in code, map `BoxFromLandmarks::dlib_68()`):");
+    let runs: Vec<usize> = results.iter().filter_map(|r| r.passes_run).collect();
+    let count = |k: usize| runs.iter().filter(|&&n| n == k).count();
+    println!(
+        "Passes run with up to 3 (box settled at {} of its side): mean {:.2}; 1 pass {}, 2 passes {}, 3 passes {} faces",
+        facerecon_vision::pipeline::Refinement::DEFAULT_SETTLE,
+        runs.iter().sum::<usize>() as f64 / runs.len().max(1) as f64,
+        count(1),
+        count(2),
+        count(3)
+    );
+    println!("Refinement passes (calibration in code, map `BoxFromLandmarks::dlib_68()`, a pass skipped once the box settles):");
     println!("| photos | 1 pass (no refinement) | 2 passes | 3 passes | 4 passes | raw detector box, 1 pass | raw detector box, 3 passes | dlib HOG box, 1 pass | dlib HOG box, 2 passes |");
     println!("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |");
     for (name, f) in &groups {

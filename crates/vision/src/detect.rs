@@ -67,6 +67,9 @@ pub const FRONTAL_LBP: &str = "lbpcascades/lbpcascade_frontalface.xml";
 pub const FRONTAL_LBP_IMPROVED: &str = "lbpcascades/lbpcascade_frontalface_improved.xml";
 pub const PROFILE_LBP: &str = "lbpcascades/lbpcascade_profileface.xml";
 
+/// The coarse grid of the profile cascades in [`ViolaJones::load_default`].
+pub const PROFILE_COARSE_GRID: u32 = 4;
+
 /// Detection parameters. The defaults are the product's tuned setting (see
 /// `docs/decisions/0400-face-detector.md`); [`DetectorParams::opencv`] reproduces
 /// `detectMultiScale(scaleFactor 1.1, minNeighbors 3, minSize 24)`.
@@ -186,6 +189,16 @@ impl DetectorParams {
 pub struct NamedCascade {
     pub name: String,
     pub cascade: Cascade,
+    /// This cascade's coarse grid for [`DetectorParams::coarse_to_fine`] (2–8), in place of
+    /// [`DetectorParams::coarse_grid`]; `None`: the parameters' grid.
+    pub coarse_grid: Option<u32>,
+}
+
+impl NamedCascade {
+    /// A cascade scanned with the parameters' coarse grid.
+    pub fn new(name: impl Into<String>, cascade: Cascade) -> Self {
+        NamedCascade { name: name.into(), cascade, coarse_grid: None }
+    }
 }
 
 /// A raw (grouped, not yet merged) face of one cascade.
@@ -238,10 +251,12 @@ impl ViolaJones {
         let mirrored = profile.mirrored();
         Self::new(
             vec![
-                NamedCascade { name: "haar-frontal".into(), cascade: frontal },
-                NamedCascade { name: "lbp-frontal".into(), cascade: lbp },
-                NamedCascade { name: "haar-profile".into(), cascade: profile },
-                NamedCascade { name: "haar-profile-mirrored".into(), cascade: mirrored },
+                NamedCascade::new("haar-frontal", frontal),
+                NamedCascade::new("lbp-frontal", lbp),
+                // The profile cascades find few faces the frontal ones miss and cost half
+                // the scan: a coarser grid for them (docs/decisions/0401-detector-speed.md).
+                NamedCascade { coarse_grid: Some(PROFILE_COARSE_GRID), ..NamedCascade::new("haar-profile", profile) },
+                NamedCascade { coarse_grid: Some(PROFILE_COARSE_GRID), ..NamedCascade::new("haar-profile-mirrored", mirrored) },
             ],
             DetectorParams::default(),
         )
@@ -255,9 +270,9 @@ impl ViolaJones {
             let c = read_cascade(path)?;
             let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
             if *mirror {
-                cascades.push(NamedCascade { name: format!("{name}-mirrored"), cascade: c.mirrored() });
+                cascades.push(NamedCascade::new(format!("{name}-mirrored"), c.mirrored()));
             }
-            cascades.push(NamedCascade { name, cascade: c });
+            cascades.push(NamedCascade::new(name, c));
         }
         Self::new(cascades, params)
     }
@@ -266,6 +281,9 @@ impl ViolaJones {
         params.validate()?;
         if cascades.is_empty() {
             return Err(DetectError::Params("a detector needs at least one cascade".into()));
+        }
+        if let Some(c) = cascades.iter().find(|c| c.coarse_grid.is_some_and(|g| !(2..=8).contains(&g))) {
+            return Err(DetectError::Params(format!("cascade {}: coarse_grid {:?} must be in 2..=8", c.name, c.coarse_grid)));
         }
         Ok(ViolaJones { cascades, params })
     }
@@ -367,7 +385,8 @@ impl ViolaJones {
                 match p.coarse_to_fine {
                     Some(f) => {
                         let stages = (f * c.cascade().stages.len() as f32).ceil() as usize;
-                        let coarse = scan::Coarse { grid: p.coarse_grid as usize, min_stages: stages };
+                        let grid = self.cascades[ci].coarse_grid.unwrap_or(p.coarse_grid);
+                        let coarse = scan::Coarse { grid: grid as usize, min_stages: stages };
                         scan::scan_rows_coarse_to_fine(c, &lv.integral, lv.scale, step, coarse, rows, &mut out)
                     }
                     None => scan::scan_rows(c, &lv.integral, lv.scale, step, rows, &mut out),

@@ -9,6 +9,7 @@
 //! same way whichever detector found it.
 
 use image::RgbImage;
+use rayon::prelude::*;
 
 use crate::crop::{self, Bucket, Crop};
 use crate::decode::{self, DecodeError, DecodeLimits};
@@ -32,7 +33,8 @@ pub struct Face {
     /// Tight box of the landmarks: what the crop is made from.
     pub landmark_box: FaceBox,
     pub bucket: Bucket,
-    /// `None` when the face is too small to reconstruct.
+    /// `None` when the face is too small to reconstruct, or when the front end makes no
+    /// crops ([`FrontEnd::with_crops`]).
     pub crop: Option<Crop>,
 }
 
@@ -53,6 +55,7 @@ pub struct FrontEnd {
     predictor: Box<dyn LandmarkPredictor>,
     calibration: BoxCalibration,
     refinement: Option<Refinement>,
+    crops: bool,
     /// Upper bound on faces processed per image (largest boxes first).
     pub max_faces: usize,
 }
@@ -61,7 +64,7 @@ impl FrontEnd {
     /// A front end from any detector and predictor; boxes are passed on unchanged until
     /// [`Self::with_calibration`] says otherwise.
     pub fn new(detector: Box<dyn FaceDetector>, predictor: Box<dyn LandmarkPredictor>) -> Self {
-        FrontEnd { detector, predictor, calibration: BoxCalibration::identity(), refinement: None, max_faces: 64 }
+        FrontEnd { detector, predictor, calibration: BoxCalibration::identity(), refinement: None, crops: true, max_faces: 64 }
     }
 
     pub fn with_calibration(mut self, calibration: BoxCalibration) -> Self {
@@ -77,13 +80,22 @@ impl FrontEnd {
     /// the previous pass's landmarks (`map` must describe the predictor's box convention,
     /// e.g. [`BoxFromLandmarks::dlib_68`] for dlib's 68-point model). `passes = 0` turns
     /// refinement off.
+    /// A pass is skipped once the box has settled ([`Refinement::DEFAULT_SETTLE`]).
     pub fn with_refinement(mut self, map: BoxFromLandmarks, passes: usize) -> Self {
-        self.refinement = (passes > 0).then_some(Refinement { map, passes });
+        self.refinement = (passes > 0).then_some(Refinement { map, passes, settle: Refinement::DEFAULT_SETTLE });
         self
     }
 
     pub fn refinement(&self) -> Option<&Refinement> {
         self.refinement.as_ref()
+    }
+
+    /// Whether faces get their 224 × 224 crop (default on). A caller that only wants boxes,
+    /// landmarks and buckets (e.g. `facerecon detect`) turns it off and saves the
+    /// resampling (≈ 1.5 ms per face).
+    pub fn with_crops(mut self, crops: bool) -> Self {
+        self.crops = crops;
+        self
     }
 
     /// Decodes (with limits) and runs.
@@ -102,7 +114,8 @@ impl FrontEnd {
         });
         detections.sort_by(|a, b| b.face_box.area().total_cmp(&a.face_box.area()));
         detections.truncate(self.max_faces);
-        detections.into_iter().map(|d| self.face(image, d)).collect()
+        // Faces are independent: one per core when a photo has several.
+        detections.into_par_iter().map(|d| self.face(image, d)).collect()
     }
 
     /// Landmarks, crop and bucket for one detection.
@@ -119,6 +132,9 @@ impl FrontEnd {
                 // Points the map cannot use (e.g. a predictor giving fewer points) end the
                 // refinement with the last landmarks.
                 let Some(next) = r.map.apply(&landmarks.points) else { break };
+                if r.settled(&landmark_input_box, &next) {
+                    break;
+                }
                 landmarks = predict(next)?;
                 landmark_input_box = next;
                 landmark_passes += 1;
@@ -127,7 +143,7 @@ impl FrontEnd {
         let landmark_box = bounding_box(&landmarks.points).unwrap_or(landmark_input_box);
         let (_, _, side) = crop::crop_square(&landmark_box);
         let bucket = Bucket::from_side(side);
-        let crop = (bucket != Bucket::TooSmall).then(|| crop::crop_face(image, &landmark_box));
+        let crop = (self.crops && bucket != Bucket::TooSmall).then(|| crop::crop_face(image, &landmark_box));
         Ok(Face { detection, landmark_input_box, landmark_passes, landmarks, landmark_box, bucket, crop })
     }
 }
@@ -137,8 +153,27 @@ impl FrontEnd {
 pub struct Refinement {
     /// Landmarks → the predictor's input box.
     pub map: BoxFromLandmarks,
-    /// Passes after the first (≥ 1).
+    /// Passes after the first (≥ 1), at most.
     pub passes: usize,
+    /// A pass is skipped, and refinement ends, when its box would move no edge by more than
+    /// `settle` × the side of the previous pass's box: the predictor would return nearly
+    /// the same points (0: always run every pass).
+    pub settle: f32,
+}
+
+impl Refinement {
+    /// 2 % of the box side (4 px on a 200-px face): see
+    /// docs/decisions/0502-landmark-refinement-passes.md for what it costs in NME.
+    pub const DEFAULT_SETTLE: f32 = 0.02;
+
+    /// Whether `next` is within `settle` of `previous` (see [`Refinement::settle`]).
+    pub fn settled(&self, previous: &FaceBox, next: &FaceBox) -> bool {
+        let side = previous.width().max(previous.height());
+        let moved = [next.x0 - previous.x0, next.y0 - previous.y0, next.x1 - previous.x1, next.y1 - previous.y1]
+            .iter()
+            .fold(0f32, |m, d| m.max(d.abs()));
+        side > 0.0 && moved < self.settle * side
+    }
 }
 
 /// Tight box of a set of points (`None` when empty or not finite).
@@ -187,13 +222,17 @@ mod tests {
         Detection { face_box: FaceBox { x0, y0, x1, y1 }, score: 1.0, source: source.into() }
     }
 
+    fn fe_dets() -> Vec<Detection> {
+        vec![
+            det(10.0, 10.0, 30.0, 30.0, "a"),    // 20 px → crop side 26 → too small
+            det(100.0, 50.0, 300.0, 250.0, "b"), // 200 px → after calibration 100 → 130
+            det(f32::NAN, 0.0, 1.0, 1.0, "a"),   // dropped
+        ]
+    }
+
     #[test]
     fn faces_are_calibrated_sorted_cropped_and_bucketed() {
-        let dets = vec![
-            det(10.0, 10.0, 30.0, 30.0, "a"),       // 20 px → crop side 26 → too small
-            det(100.0, 50.0, 300.0, 250.0, "b"),    // 200 px → after calibration 100 → 130
-            det(f32::NAN, 0.0, 1.0, 1.0, "a"),      // dropped
-        ];
+        let dets = fe_dets();
         let mut cal = BoxCalibration::identity();
         cal.by_source.insert(
             "b".into(),
@@ -217,6 +256,15 @@ mod tests {
         assert_eq!(faces[1].bucket, Bucket::TooSmall);
         assert!(faces[1].crop.is_none());
         assert_eq!(faces[1].detection.face_box.x0, 10.0);
+
+        // Without crops: the same faces, boxes, landmarks and buckets, no crop.
+        let plain = FrontEnd::new(Box::new(Fixed(fe_dets())), Box::new(Corners)).with_calibration(fe.calibration().clone()).with_crops(false);
+        let bare = plain.run(&img).unwrap();
+        assert_eq!(bare.len(), 2);
+        for (a, b) in faces.iter().zip(&bare) {
+            assert_eq!((a.landmark_box, a.bucket, &a.landmarks.points), (b.landmark_box, b.bucket, &b.landmarks.points));
+            assert!(b.crop.is_none());
+        }
     }
 
     /// A predictor giving fewer points than the refinement map reads.
@@ -244,6 +292,14 @@ mod tests {
         let fe = FrontEnd::new(Box::new(Fixed(dets.clone())), Box::new(Corners)).with_refinement(halve, 0);
         assert!(fe.refinement().is_none());
         assert_eq!(fe.run(&RgbImage::new(400, 300)).unwrap()[0].landmark_passes, 1);
+        // A map giving back the box it was given (the corners predictor's points span the
+        // box): settled at once, no second pass; with settle 0 every pass runs.
+        let same = BoxFromLandmarks { cx: [0.0; 3], cy: [0.0; 3], side: [1.0, 0.0, 0.0] };
+        let fe = FrontEnd::new(Box::new(Fixed(dets.clone())), Box::new(Corners)).with_refinement(same, 2);
+        assert_eq!(fe.run(&RgbImage::new(400, 300)).unwrap()[0].landmark_passes, 1);
+        let mut fe = fe;
+        fe.refinement.as_mut().unwrap().settle = 0.0;
+        assert_eq!(fe.run(&RgbImage::new(400, 300)).unwrap()[0].landmark_passes, 3);
         // Points the map cannot read: the first pass's landmarks are kept.
         let fe = FrontEnd::new(Box::new(Fixed(dets)), Box::new(FewPoints)).with_refinement(halve, 2);
         let f = &fe.run(&RgbImage::new(400, 300)).unwrap()[0];

@@ -14,8 +14,8 @@ fuzz_target!(|data: &[u8]| {
     let mirrored = c.mirrored();
     let det = ViolaJones::new(
         vec![
-            NamedCascade { name: "c".into(), cascade: c },
-            NamedCascade { name: "m".into(), cascade: mirrored },
+            NamedCascade::new("c", c),
+            NamedCascade::new("m", mirrored),
         ],
         DetectorParams { min_size: 1, min_neighbors: 1, scale_factor: 1.5, ..Default::default() },
     )

@@ -270,6 +270,13 @@ fn bad_params_are_refused() {
     assert_eq!(DetectorParams::opencv().coarse_to_fine, None);
     assert_eq!(DetectorParams::opencv().min_size_fraction, 0.0);
     assert!(det.set_params(DetectorParams::opencv()).is_ok());
+    // A cascade's own coarse grid is checked like the parameters' one.
+    let mut cascades = det.cascades().to_vec();
+    assert_eq!(cascades.iter().filter(|c| c.coarse_grid == Some(PROFILE_COARSE_GRID)).count(), 2);
+    cascades[0].coarse_grid = Some(9);
+    assert!(ViolaJones::new(cascades.clone(), DetectorParams::default()).is_err());
+    cascades[0].coarse_grid = Some(3);
+    assert!(ViolaJones::new(cascades, DetectorParams::default()).is_ok());
 }
 
 /// The inlined-stump evaluation (the fast path of every installed stump cascade) gives
