@@ -11,14 +11,13 @@
 //! `cargo bench -p facerecon-synth --bench synth` (`FACERECON_MODEL_FILE=…` to use a model
 //! file instead of building the default model).
 
-use criterion::measurement::{Measurement, ValueFormatter, WallTime};
+use criterion::measurement::Measurement;
 use criterion::{Criterion, criterion_group, criterion_main};
 use facerecon_model::{Coefficients, MorphableModel};
 use facerecon_synth::lit::LitFace;
 use facerecon_synth::{Generator, SynthConfig};
 use std::hint::black_box;
 use std::sync::Arc;
-use std::time::Duration;
 
 fn model() -> Arc<MorphableModel> {
     // A model file may be named explicitly (machines without the ICT-FaceKit folder).
@@ -52,39 +51,9 @@ fn bench_lit<M: Measurement + 'static>(c: &mut Criterion<M>, prefix: &str, model
     }
 }
 
-/// Thread CPU time as a criterion measurement.
-struct CpuTime;
-
-fn thread_cpu() -> Duration {
-    let mut t = libc::timespec { tv_sec: 0, tv_nsec: 0 };
-    // SAFETY: valid pointer to a timespec; CLOCK_THREAD_CPUTIME_ID is always available on Linux.
-    unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut t) };
-    Duration::new(t.tv_sec as u64, t.tv_nsec as u32)
-}
-
-impl Measurement for CpuTime {
-    type Intermediate = Duration;
-    type Value = Duration;
-    fn start(&self) -> Duration {
-        thread_cpu()
-    }
-    fn end(&self, i: Duration) -> Duration {
-        thread_cpu() - i
-    }
-    fn add(&self, a: &Duration, b: &Duration) -> Duration {
-        *a + *b
-    }
-    fn zero(&self) -> Duration {
-        Duration::ZERO
-    }
-    fn to_f64(&self, v: &Duration) -> f64 {
-        v.as_nanos() as f64
-    }
-    fn formatter(&self) -> &dyn ValueFormatter {
-        static WALL: WallTime = WallTime;
-        WALL.formatter()
-    }
-}
+#[path = "../../model/benches/support/thread_cpu.rs"]
+mod thread_cpu;
+use thread_cpu::CpuTime;
 
 fn bench_cpu(c: &mut Criterion<CpuTime>) {
     bench_lit(c, "cpu/", &model());
