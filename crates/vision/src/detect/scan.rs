@@ -399,6 +399,18 @@ pub struct Rect {
     pub h: i32,
 }
 
+/// The source-pixel rectangle of the window at level position (`x`, `y`) on a level of
+/// scale `scale`: `round(x·f)`, `round(y·f)`, window × f rounded.
+fn window_rect(c: &Compiled<'_>, scale: f32, x: usize, y: usize) -> Rect {
+    let f = f64::from(scale);
+    Rect {
+        x: (x as f64 * f).round() as i32,
+        y: (y as f64 * f).round() as i32,
+        w: (f64::from(c.cascade.width) * f).round() as i32,
+        h: (f64::from(c.cascade.height) * f).round() as i32,
+    }
+}
+
 /// Scans rows `rows` of a level, OpenCV's way: windows every `step` level pixels (OpenCV:
 /// 2 below scale 2, else 1; see `DetectorParams::window_step`), and a window rejected by
 /// the very first stage also skips the next position. Accepted windows are returned as
@@ -416,23 +428,13 @@ pub fn scan_rows(
         return;
     }
     let step = step.max(1);
-    let win_w = (f64::from(c.cascade.width) * f64::from(scale)).round() as i32;
-    let win_h = (f64::from(c.cascade.height) * f64::from(scale)).round() as i32;
     let y_end = rows.end.min(ii.height - ey + 1);
     let mut y = rows.start.div_ceil(step) * step;
     while y < y_end {
         let mut x = 0;
         while x + ex <= ii.width {
             match c.eval(ii, y * ii.stride + x) {
-                Outcome::Accepted(margin) => out.push((
-                    Rect {
-                        x: (x as f64 * f64::from(scale)).round() as i32,
-                        y: (y as f64 * f64::from(scale)).round() as i32,
-                        w: win_w,
-                        h: win_h,
-                    },
-                    margin,
-                )),
+                Outcome::Accepted(margin) => out.push((window_rect(c, scale, x, y), margin)),
                 Outcome::Rejected(0) => x += step,
                 _ => {}
             }
@@ -487,19 +489,7 @@ pub fn scan_rows_coarse_to_fine(
     if y0 >= y1 {
         return;
     }
-    let win_w = (f64::from(c.cascade.width) * f64::from(scale)).round() as i32;
-    let win_h = (f64::from(c.cascade.height) * f64::from(scale)).round() as i32;
-    let hit = |x: usize, y: usize, margin: f32| {
-        (
-            Rect {
-                x: (x as f64 * f64::from(scale)).round() as i32,
-                y: (y as f64 * f64::from(scale)).round() as i32,
-                w: win_w,
-                h: win_h,
-            },
-            margin,
-        )
-    };
+    let hit = |x: usize, y: usize, margin: f32| (window_rect(c, scale, x, y), margin);
     let cols = nx.div_ceil(s);
     let band_rows = (y1 - y0).div_ceil(s);
     // Per regular-grid window of the band: 0 not marked, 1 marked (queued), 2 evaluated.
