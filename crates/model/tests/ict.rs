@@ -301,18 +301,8 @@ fn shape_and_albedo_with_many_modes_match_a_naive_sum() {
     let nf = m.face_vertex_count();
     for v in (0..nf).step_by(97) {
         for c in 0..3 {
-            let mut s = m.mean_shape()[v][c] as f64;
-            for (k, w) in id.iter().enumerate() {
-                s += *w as f64 * m.identity_mode(k)[v][c] as f64;
-            }
-            for (k, w) in ex.iter().enumerate() {
-                s += *w as f64 * m.expression_mode(k)[v][c] as f64;
-            }
+            let (s, a) = reference_sums(&m, &id, &ex, &tex, v, c);
             assert!((got[v][c] as f64 - s).abs() < tol, "vertex {v}");
-            let mut a = m.mean_albedo()[v][c] as f64;
-            for (k, w) in tex.iter().enumerate() {
-                a += *w as f64 * m.albedo_mode(k)[v][c] as f64;
-            }
             assert!((alb[v][c] as f64 - a).abs() < 1e-5, "albedo vertex {v}");
         }
     }
@@ -424,17 +414,7 @@ fn face_area_evaluation_stays_within_its_stated_bound_of_the_f32_sum() {
         let (mut es, mut ea) = (0.0f32, 0.0f32);
         for v in 0..nf {
             for c in 0..3 {
-                let mut s = m.mean_shape()[v][c] as f64;
-                for (k, w) in id.iter().enumerate() {
-                    s += *w as f64 * m.identity_mode(k)[v][c] as f64;
-                }
-                for (k, w) in ex.iter().enumerate() {
-                    s += *w as f64 * m.expression_mode(k)[v][c] as f64;
-                }
-                let mut a = m.mean_albedo()[v][c] as f64;
-                for (k, w) in tex.iter().enumerate() {
-                    a += *w as f64 * m.albedo_mode(k)[v][c] as f64;
-                }
+                let (s, a) = reference_sums(&m, &id, &ex, &tex, v, c);
                 es = es.max((shape[v][c] as f64 - s).abs() as f32);
                 ea = ea.max((alb[v][c] as f64 - a).abs() as f32);
             }
@@ -455,4 +435,21 @@ fn face_area_evaluation_stays_within_its_stated_bound_of_the_f32_sum() {
     }
     // The quantisation is visible at all (the test compares two different evaluations).
     assert!(worst.0 > 0.0 && worst.1 > 0.0);
+}
+
+/// Plain f64 sums over the stored f32 modes at vertex `v`, channel `c`: (shape, albedo).
+/// The independent reference the evaluated instances are checked against.
+fn reference_sums(m: &MorphableModel, id: &[f32], ex: &[f32], tex: &[f32], v: usize, c: usize) -> (f64, f64) {
+    let mut s = m.mean_shape()[v][c] as f64;
+    for (k, w) in id.iter().enumerate() {
+        s += *w as f64 * m.identity_mode(k)[v][c] as f64;
+    }
+    for (k, w) in ex.iter().enumerate() {
+        s += *w as f64 * m.expression_mode(k)[v][c] as f64;
+    }
+    let mut a = m.mean_albedo()[v][c] as f64;
+    for (k, w) in tex.iter().enumerate() {
+        a += *w as f64 * m.albedo_mode(k)[v][c] as f64;
+    }
+    (s, a)
 }
