@@ -7,6 +7,8 @@
 
 #[path = "../tests/support/faces300w.rs"]
 mod faces300w;
+#[path = "../tests/support/process_cpu.rs"]
+mod process_cpu;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use image::ImageEncoder;
@@ -34,31 +36,6 @@ fn jpeg_640x480() -> Vec<u8> {
     out
 }
 
-/// CPU time (user + system) of this process so far, in seconds, from /proc (10 ms ticks):
-/// a figure less sensitive than wall-clock time to other jobs on a shared machine.
-fn process_cpu_seconds() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    let fields: Vec<&str> = stat
-        .rsplit_once(')')
-        .map(|(_, r)| r.split_whitespace().collect())
-        .unwrap_or_default();
-    // after the command name: state is field 3, utime 14, stime 15 (1-based in proc(5))
-    let ticks = |i: usize| {
-        fields
-            .get(i - 3)
-            .and_then(|v| v.parse::<f64>().ok())
-            .unwrap_or(0.0)
-    };
-    (ticks(14) + ticks(15)) / 100.0
-}
-
-fn cpu_ms_per_call(n: usize, mut f: impl FnMut()) -> f64 {
-    let t0 = process_cpu_seconds();
-    for _ in 0..n {
-        f();
-    }
-    1e3 * (process_cpu_seconds() - t0) / n as f64
-}
 
 fn decode_jpeg(c: &mut Criterion) {
     let jpeg = jpeg_640x480();
@@ -77,8 +54,8 @@ fn decode_jpeg(c: &mut Criterion) {
     };
     eprintln!(
         "CPU per decode: libjpeg_turbo {:.2} ms, image_zune_jpeg {:.2} ms",
-        cpu_ms_per_call(500, ours),
-        cpu_ms_per_call(500, zune)
+        process_cpu::ms_per_call(500, ours).0,
+        process_cpu::ms_per_call(500, zune).0
     );
     let mut g = c.benchmark_group("decode_jpeg_640x480");
     g.bench_function("libjpeg_turbo", |b| b.iter(ours));

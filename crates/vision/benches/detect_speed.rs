@@ -1,38 +1,21 @@
 //! Detection time on a 640×480 photo (a faces-300w photo resized at run time).
 //!
 //!     cargo bench -p facerecon-vision --bench detect_speed
+#[path = "../tests/support/process_cpu.rs"]
+mod process_cpu;
+#[path = "../tests/support/faces300w.rs"]
+mod faces300w;
+
 use criterion::{Criterion, criterion_group, criterion_main};
 use facerecon_vision::detect::{DetectorParams, ViolaJones};
-use std::path::PathBuf;
 
 fn photo_640x480() -> image::RgbImage {
-    let shared = std::env::var_os("FACERECON_SHARED")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared")));
-    let p = shared.join("data/faces-300w/helen/testset/296814969_3.jpg");
-    let img = facerecon_vision::decode::decode(&std::fs::read(&p).unwrap()).unwrap();
+    let img = faces300w::load_rgb(&faces300w::dataset_dir(), "helen/testset/296814969_3.jpg");
     image::imageops::resize(&img, 640, 480, image::imageops::FilterType::Triangle)
 }
 
-/// Process CPU time (user + system) in seconds, from /proc/self/stat (clock ticks of 10 ms).
-/// On a shared, overloaded machine wall time mostly measures waiting; CPU time per call
-/// is the work done (wall on two idle cores ≈ CPU / 2 when both threads are busy).
-fn cpu_seconds() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    let after = stat.rsplit(')').next().unwrap_or("");
-    let f: Vec<&str> = after.split_whitespace().collect();
-    let ticks = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
-    (ticks(11) + ticks(12)) / 100.0
-}
-
 fn cpu_per_call(label: &str, f: impl Fn()) {
-    let n = 20;
-    let (c0, t0) = (cpu_seconds(), std::time::Instant::now());
-    for _ in 0..n {
-        f();
-    }
-    let cpu = (cpu_seconds() - c0) / f64::from(n) * 1e3;
-    let wall = t0.elapsed().as_secs_f64() / f64::from(n) * 1e3;
+    let (cpu, wall) = process_cpu::ms_per_call(20, f);
     println!("{label}: CPU {cpu:.1} ms per call, wall {wall:.1} ms per call");
 }
 

@@ -8,6 +8,8 @@
 
 #[path = "../tests/support/faces300w.rs"]
 mod faces300w;
+#[path = "../tests/support/process_cpu.rs"]
+mod process_cpu;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use facerecon_vision::detect::{DetectorParams, ViolaJones};
@@ -34,24 +36,6 @@ fn photo_640x480() -> image::RgbImage {
     image::imageops::resize(&cropped, 640, 480, image::imageops::FilterType::CatmullRom)
 }
 
-/// CPU time (user + system) of the whole process (all threads) so far, in seconds,
-/// from /proc (clock ticks of 10 ms): a contention-independent figure beside criterion's
-/// wall-clock times on a shared machine.
-fn process_cpu_seconds() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    let fields: Vec<&str> = stat.rsplit_once(')').map(|(_, r)| r.split_whitespace().collect()).unwrap_or_default();
-    // after the command name: state is field 3, utime 14, stime 15 (1-based in proc(5))
-    let ticks = |i: usize| fields.get(i - 3).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
-    (ticks(14) + ticks(15)) / 100.0
-}
-
-fn cpu_per_call(n: usize, mut f: impl FnMut()) -> f64 {
-    let t0 = process_cpu_seconds();
-    for _ in 0..n {
-        f();
-    }
-    (process_cpu_seconds() - t0) / n as f64
-}
 
 fn benches(c: &mut Criterion) {
     let dir = faces300w::dataset_dir();
@@ -61,11 +45,12 @@ fn benches(c: &mut Criterion) {
     let img = faces300w::load_rgb(&dir, PHOTO);
     let b = r.face_box();
     c.bench_function("landmarks_per_face", |bench| bench.iter(|| black_box(sp.predict(black_box(&img), &b))));
-    eprintln!("landmarks_per_face: {:.3} ms CPU per call", 1e3 * cpu_per_call(300, || {
+    eprintln!("landmarks_per_face: {:.3} ms CPU per call", process_cpu::ms_per_call(300, || {
         black_box(sp.predict(black_box(&img), &b));
-    }));
+    }).0);
 
-    // One face through FrontEnd::face (landmarks + crop), without and with refinement.
+    // One face through FrontEnd::face (landmarks + crop), without and with 2 refinement
+    // passes, both run (no settling): what a pass on a new box costs.
     struct NoDetector;
     impl FaceDetector for NoDetector {
         fn detect(&self, _: &image::RgbImage) -> Result<Vec<Detection>, ModelRunError> {
@@ -74,12 +59,12 @@ fn benches(c: &mut Criterion) {
     }
     let det = Detection { face_box: b, score: 1.0, source: "dlib-hog".into() };
     for passes in [0, 2] {
-        let fe = FrontEnd::new(Box::new(NoDetector), Box::new(sp.clone())).with_refinement(BoxFromLandmarks::dlib_68(), passes);
+        let fe = FrontEnd::new(Box::new(NoDetector), Box::new(sp.clone())).with_refinement(BoxFromLandmarks::dlib_68(), passes).with_settle(0.0);
         let name = format!("face_with_{passes}_refinement_passes");
         c.bench_function(&name, |bench| bench.iter(|| black_box(fe.face(black_box(&img), det.clone()).unwrap())));
-        eprintln!("{name}: {:.3} ms CPU per call", 1e3 * cpu_per_call(300, || {
+        eprintln!("{name}: {:.3} ms CPU per call", process_cpu::ms_per_call(300, || {
             black_box(fe.face(black_box(&img), det.clone()).unwrap());
-        }));
+        }).0);
     }
 
     let small = photo_640x480();
@@ -103,9 +88,9 @@ fn benches(c: &mut Criterion) {
         let faces = front.run(&small).unwrap();
         eprintln!("{name}: {} face(s)", faces.len());
         c.bench_function(name, |bench| bench.iter(|| black_box(front.run(black_box(&small)).unwrap())));
-        eprintln!("{name}: {:.3} ms CPU per call (all threads)", 1e3 * cpu_per_call(30, || {
+        eprintln!("{name}: {:.3} ms CPU per call (all threads)", process_cpu::ms_per_call(30, || {
             black_box(front.run(black_box(&small)).unwrap());
-        }));
+        }).0);
     }
 }
 

@@ -7,39 +7,25 @@
 //! Parameters can be overridden: DETECT_C2F (coarse-to-fine stage fraction; negative: off)
 //! and DETECT_C2F_GRID (its coarse grid in window steps).
 
+#[path = "../tests/support/process_cpu.rs"]
+mod process_cpu;
+#[path = "../tests/support/faces300w.rs"]
+mod faces300w;
+
 use facerecon_vision::detect::integral::Integral;
 use facerecon_vision::detect::pyramid::{self, Grey};
 use facerecon_vision::detect::scan::{Compiled, Outcome};
 use facerecon_vision::detect::{DetectorParams, ViolaJones};
-use std::path::PathBuf;
-use std::time::Instant;
 
-fn shared() -> PathBuf {
-    std::env::var_os("FACERECON_SHARED")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared")))
-}
 
-fn cpu_seconds() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    let after = stat.rsplit(')').next().unwrap_or("");
-    let f: Vec<&str> = after.split_whitespace().collect();
-    let ticks = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
-    (ticks(11) + ticks(12)) / 100.0
-}
-
-fn per_call(n: usize, f: impl Fn()) -> (f64, f64) {
+/// (CPU ms, wall ms) per call of `f` after one warm-up call.
+fn per_call(n: usize, mut f: impl FnMut()) -> (f64, f64) {
     f();
-    let (c0, t0) = (cpu_seconds(), Instant::now());
-    for _ in 0..n {
-        f();
-    }
-    ((cpu_seconds() - c0) / n as f64 * 1e3, t0.elapsed().as_secs_f64() / n as f64 * 1e3)
+    process_cpu::ms_per_call(n, f)
 }
 
 fn main() {
-    let p = shared().join("data/faces-300w/helen/testset/296814969_3.jpg");
-    let img = facerecon_vision::decode::decode(&std::fs::read(&p).unwrap()).unwrap();
+    let img = faces300w::load_rgb(&faces300w::dataset_dir(), "helen/testset/296814969_3.jpg");
     let img = image::imageops::resize(&img, 640, 480, image::imageops::FilterType::Triangle);
     let mut det = ViolaJones::load_default().unwrap();
     let mut params: DetectorParams = det.params().clone();

@@ -86,6 +86,15 @@ impl FrontEnd {
         self
     }
 
+    /// Sets the refinement's [`Refinement::settle`] (0: every pass runs); no effect
+    /// without refinement.
+    pub fn with_settle(mut self, settle: f32) -> Self {
+        if let Some(r) = &mut self.refinement {
+            r.settle = settle;
+        }
+        self
+    }
+
     pub fn refinement(&self) -> Option<&Refinement> {
         self.refinement.as_ref()
     }
@@ -297,8 +306,7 @@ mod tests {
         let same = BoxFromLandmarks { cx: [0.0; 3], cy: [0.0; 3], side: [1.0, 0.0, 0.0] };
         let fe = FrontEnd::new(Box::new(Fixed(dets.clone())), Box::new(Corners)).with_refinement(same, 2);
         assert_eq!(fe.run(&RgbImage::new(400, 300)).unwrap()[0].landmark_passes, 1);
-        let mut fe = fe;
-        fe.refinement.as_mut().unwrap().settle = 0.0;
+        let fe = fe.with_settle(0.0);
         assert_eq!(fe.run(&RgbImage::new(400, 300)).unwrap()[0].landmark_passes, 3);
         // Points the map cannot read: the first pass's landmarks are kept.
         let fe = FrontEnd::new(Box::new(Fixed(dets)), Box::new(FewPoints)).with_refinement(halve, 2);
