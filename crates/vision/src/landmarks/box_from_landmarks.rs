@@ -20,6 +20,8 @@
 
 use std::ops::Range;
 
+use glam::{DMat3, DVec3};
+
 use crate::face::FaceBox;
 
 /// The iBUG points (0-based) whose centre and extent the map reads: contour, brows, nose
@@ -114,26 +116,15 @@ impl BoxFromLandmarks {
     }
 }
 
-/// Solves the 3×3 system `a·x = b` by Cramer's rule (`None` when near-singular).
+/// Solves the symmetric 3×3 system `a·x = b` (`None` when near-singular).
 fn solve3(a: [[f64; 3]; 3], b: [f64; 3]) -> Option<[f64; 3]> {
-    let det = |m: [[f64; 3]; 3]| {
-        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
-    };
-    let d = det(a);
+    let m = DMat3::from_cols_array_2d(&a);
+    let d = m.determinant();
     let scale = a.iter().flatten().fold(0.0f64, |s, v| s.max(v.abs()));
     if !d.is_finite() || d.abs() <= 1e-12 * scale.powi(3) {
         return None;
     }
-    let mut x = [0.0; 3];
-    for (k, xk) in x.iter_mut().enumerate() {
-        let mut m = a;
-        for i in 0..3 {
-            m[i][k] = b[i];
-        }
-        *xk = det(m) / d;
-    }
-    Some(x)
+    Some((m.inverse() * DVec3::from(b)).to_array())
 }
 
 /// Fitted coefficients, kept in code.
