@@ -80,6 +80,7 @@ impl FrontEnd {
     /// the previous pass's landmarks (`map` must describe the predictor's box convention,
     /// e.g. [`BoxFromLandmarks::dlib_68`] for dlib's 68-point model). `passes = 0` turns
     /// refinement off.
+    ///
     /// A pass is skipped once the box has settled ([`Refinement::DEFAULT_SETTLE`]).
     pub fn with_refinement(mut self, map: BoxFromLandmarks, passes: usize) -> Self {
         self.refinement = (passes > 0).then_some(Refinement { map, passes, settle: Refinement::DEFAULT_SETTLE });
