@@ -9,6 +9,8 @@
 //! * [`obj`], [`npy`] — readers for the importers' inputs; [`symmetry`] — mirror maps;
 //!   [`regions`] — landmark-defined vertex masks.
 //! * [`mesh`] — a triangle mesh with optional per-vertex attributes, and its export.
+//! * [`lit`] — [`lit::LitFace`]: coefficients → posed, lit face-area mesh (the hot path of
+//!   fitting, the service and synthetic data).
 //! * [`scene`] — the scene ℋ of DESIGN §4: pose, camera, spherical-harmonics lighting, normals.
 
 pub mod albedo;
@@ -17,6 +19,7 @@ pub mod coeffs;
 pub mod error;
 pub mod format;
 pub mod ict;
+pub mod lit;
 pub mod mat;
 pub mod mesh;
 pub mod morphable;
@@ -27,6 +30,6 @@ pub mod scene;
 pub mod symmetry;
 
 pub use coeffs::{CoeffLayout, Coefficients};
-pub use error::ModelError;
+pub use error::{ErrorKind, ModelError};
 pub use mesh::Mesh;
 pub use morphable::{Block, Extent, Mask, ModelMeta, ModelParts, MorphableModel, Prior};

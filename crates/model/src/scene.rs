@@ -52,11 +52,7 @@ pub fn rotation_matrix_f64(q: [f64; 3]) -> DMat3 {
         let t = t2.sqrt();
         (t.sin() / t, (1.0 - t.cos()) / t2)
     };
-    let k = DMat3::from_cols(
-        DVec3::new(0.0, q.z, -q.y),
-        DVec3::new(-q.z, 0.0, q.x),
-        DVec3::new(q.y, -q.x, 0.0),
-    );
+    let k = DMat3::from_cols(DVec3::new(0.0, q.z, -q.y), DVec3::new(-q.z, 0.0, q.x), DVec3::new(q.y, -q.x, 0.0));
     DMat3::IDENTITY + k * a + (k * k) * b
 }
 
@@ -71,10 +67,7 @@ pub struct Pose {
 
 impl Pose {
     pub fn new(rotation: [f32; 3], translation: [f32; 3]) -> Self {
-        Self {
-            rotation,
-            translation,
-        }
+        Self { rotation, translation }
     }
 
     /// The pose of a coefficient set.
@@ -90,18 +83,13 @@ impl Pose {
     pub fn apply(&self, points: &[[f32; 3]]) -> Vec<[f32; 3]> {
         let r = self.matrix();
         let t = Vec3::from(self.translation);
-        points
-            .iter()
-            .map(|p| (r * Vec3::from(*p) + t).to_array())
-            .collect()
+        points.iter().map(|p| (r * Vec3::from(*p) + t).to_array()).collect()
     }
 
     /// Directions (normals) → camera space: rotation only.
     pub fn rotate(&self, dirs: &[[f32; 3]]) -> Vec<[f32; 3]> {
         let r = self.matrix();
-        dirs.iter()
-            .map(|d| (r * Vec3::from(*d)).to_array())
-            .collect()
+        dirs.iter().map(|d| (r * Vec3::from(*d)).to_array()).collect()
     }
 }
 
@@ -133,20 +121,57 @@ pub fn vertex_normals(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Vec<[f3
     acc.into_iter()
         .map(|v| {
             let l = v.length();
-            if l > 0.0 && l.is_finite() {
-                (v / l).as_vec3().to_array()
-            } else {
-                [0.0; 3]
-            }
+            if l > 0.0 && l.is_finite() { (v / l).as_vec3().to_array() } else { [0.0; 3] }
         })
         .collect()
 }
 
+/// [`vertex_normals`] in f32 into a reused buffer: the fast path of the lit mesh and the
+/// fitting decoder (the f64 function is the reference the tests compare it with). Same
+/// conventions; triangles with an index out of range are ignored.
+pub fn vertex_normals_into(positions: &[[f32; 3]], triangles: &[[u32; 3]], out: &mut Vec<[f32; 3]>) {
+    let n = positions.len();
+    out.clear();
+    out.resize(n, [0.0; 3]);
+    for tri in triangles {
+        let [a, b, c] = tri.map(|i| i as usize);
+        if a >= n || b >= n || c >= n {
+            continue;
+        }
+        let (pa, pb, pc) = (Vec3::from(positions[a]), Vec3::from(positions[b]), Vec3::from(positions[c]));
+        // Cross product length = twice the area: area weighting for free.
+        let f = (pb - pa).cross(pc - pa);
+        for v in [a, b, c] {
+            let acc = &mut out[v];
+            acc[0] += f.x;
+            acc[1] += f.y;
+            acc[2] += f.z;
+        }
+    }
+    normalize_or_zero(out);
+}
+
+/// `glam::Vec3::normalize_or_zero` on every vector (same arithmetic, same results), over
+/// structure-of-arrays blocks so that the square roots and divisions vectorise.
+pub fn normalize_or_zero(v: &mut [[f32; 3]]) {
+    const BLOCK: usize = 64;
+    for chunk in v.chunks_mut(BLOCK) {
+        let m = chunk.len();
+        let (mut x, mut y, mut z) = ([0.0f32; BLOCK], [0.0f32; BLOCK], [0.0f32; BLOCK]);
+        for i in 0..m {
+            [x[i], y[i], z[i]] = chunk[i];
+        }
+        for i in 0..m {
+            let r = 1.0 / (x[i] * x[i] + y[i] * y[i] + z[i] * z[i]).sqrt();
+            let ok = r.is_finite() && r > 0.0;
+            chunk[i] = if ok { [x[i] * r, y[i] * r, z[i] * r] } else { [0.0; 3] };
+        }
+    }
+}
+
 /// Index of the first triangle referring to a vertex `>= vertex_count`, if any.
 pub fn validate_triangles(vertex_count: usize, triangles: &[[u32; 3]]) -> Option<usize> {
-    triangles
-        .iter()
-        .position(|t| t.iter().any(|&i| i as usize >= vertex_count))
+    triangles.iter().position(|t| t.iter().any(|&i| i as usize >= vertex_count))
 }
 
 // ---------------------------------------------------------------------------------------
@@ -268,11 +293,7 @@ pub fn sh_shading(normal: [f32; 3], light: &[[f32; 3]; SH_COEFFS]) -> [f32; 3] {
 
 /// Lambertian SH colour of every vertex (Eq. 3.1): `C_j = A_j ⊙ (w_iᵀ φ(n_j))`.
 /// `albedo` and `normals` have one entry per vertex; the shorter length wins.
-pub fn shade(
-    albedo: &[[f32; 3]],
-    normals: &[[f32; 3]],
-    light: &[[f32; 3]; SH_COEFFS],
-) -> Vec<[f32; 3]> {
+pub fn shade(albedo: &[[f32; 3]], normals: &[[f32; 3]], light: &[[f32; 3]; SH_COEFFS]) -> Vec<[f32; 3]> {
     let mut out = Vec::new();
     shade_into(albedo, normals, light, &mut out);
     out
@@ -281,21 +302,11 @@ pub fn shade(
 /// [`shade`] into a reused buffer. The light is folded with the basis constants once per
 /// call, so a vertex costs its 25 basis polynomials and three 25-term dot products; equal
 /// to [`sh_shading`] per vertex up to f32 rounding (a few ULPs of the shading factor).
-pub fn shade_into(
-    albedo: &[[f32; 3]],
-    normals: &[[f32; 3]],
-    light: &[[f32; 3]; SH_COEFFS],
-    out: &mut Vec<[f32; 3]>,
-) {
+pub fn shade_into(albedo: &[[f32; 3]], normals: &[[f32; 3]], light: &[[f32; 3]; SH_COEFFS], out: &mut Vec<[f32; 3]>) {
     let n = albedo.len().min(normals.len());
     out.clear();
     out.resize(n, [0.0; 3]);
-    shading::shade_rows(
-        &shading::FoldedLight::new(light),
-        &albedo[..n],
-        &normals[..n],
-        out,
-    );
+    shading::shade_rows(&shading::FoldedLight::new(light), &albedo[..n], &normals[..n], out);
 }
 
 // ---------------------------------------------------------------------------------------
@@ -316,12 +327,7 @@ pub struct Camera {
 impl Default for Camera {
     /// fov 30°, aspect 1, near 1 mm, far 1000 mm (DESIGN §4).
     fn default() -> Self {
-        Self {
-            fov_y: FOV_Y_DEG.to_radians(),
-            aspect: 1.0,
-            near: NEAR_MM,
-            far: FAR_MM,
-        }
+        Self { fov_y: FOV_Y_DEG.to_radians(), aspect: 1.0, near: NEAR_MM, far: FAR_MM }
     }
 }
 
@@ -376,32 +382,18 @@ impl Camera {
 
 /// NDC `(x, y)` ∈ [−1, 1]² → pixel coordinates (Eq. 2.23, module pixel convention).
 pub fn ndc_to_pixel(ndc: [f32; 2], width: u32, height: u32) -> [f32; 2] {
-    [
-        (ndc[0] + 1.0) * 0.5 * width as f32 - 0.5,
-        (1.0 - ndc[1]) * 0.5 * height as f32 - 0.5,
-    ]
+    [(ndc[0] + 1.0) * 0.5 * width as f32 - 0.5, (1.0 - ndc[1]) * 0.5 * height as f32 - 0.5]
 }
 
 /// Inverse of [`ndc_to_pixel`].
 pub fn pixel_to_ndc(px: [f32; 2], width: u32, height: u32) -> [f32; 2] {
-    [
-        (px[0] + 0.5) / width as f32 * 2.0 - 1.0,
-        1.0 - (px[1] + 0.5) / height as f32 * 2.0,
-    ]
+    [(px[0] + 0.5) / width as f32 * 2.0 - 1.0, 1.0 - (px[1] + 0.5) / height as f32 * 2.0]
 }
 
 /// Projects camera-space points (e.g. the 68 landmark vertices after [`Pose::apply`]) to
 /// pixels; a point at or behind the camera gives `[NaN, NaN]`.
-pub fn project_points(
-    camera: &Camera,
-    points: &[[f32; 3]],
-    width: u32,
-    height: u32,
-) -> Vec<[f32; 2]> {
-    points
-        .iter()
-        .map(|p| camera.project(*p, width, height).unwrap_or([f32::NAN; 2]))
-        .collect()
+pub fn project_points(camera: &Camera, points: &[[f32; 3]], width: u32, height: u32) -> Vec<[f32; 2]> {
+    points.iter().map(|p| camera.project(*p, width, height).unwrap_or([f32::NAN; 2])).collect()
 }
 
 mod shading;

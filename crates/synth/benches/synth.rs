@@ -13,8 +13,8 @@
 
 use criterion::measurement::Measurement;
 use criterion::{Criterion, criterion_group, criterion_main};
+use facerecon_model::lit::LitFace;
 use facerecon_model::{Coefficients, MorphableModel};
-use facerecon_synth::lit::LitFace;
 use facerecon_synth::{Generator, SynthConfig};
 use std::hint::black_box;
 use std::sync::Arc;

@@ -4,8 +4,8 @@
 //!
 //! `cargo run -p facerecon-synth --example export -- OUT_DIR [SEED]`
 
+use facerecon_model::lit::LitFace;
 use facerecon_model::mesh::{glb, obj, ply};
-use facerecon_synth::lit::LitFace;
 use facerecon_synth::{Generator, SynthConfig};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

@@ -11,7 +11,8 @@
 //! * [`rng`] — the seeded random streams (same seed → same bytes);
 //! * [`config`] — the ranges of a run; [`generator`] — one sample; [`output`] — files;
 //! * [`light`], [`expression`], [`pose`], [`background`], [`head`] — the parts of a draw;
-//! * [`truth`] — the ground-truth record; [`lit`] — coefficients → lit face mesh.
+//! * [`truth`] — the ground-truth record. (Coefficients → lit face mesh is
+//!   `facerecon_model::lit`.)
 
 pub mod background;
 pub mod config;
@@ -19,7 +20,6 @@ pub mod expression;
 pub mod generator;
 pub mod head;
 pub mod light;
-pub mod lit;
 pub mod output;
 pub mod pose;
 pub mod rng;
@@ -39,9 +39,17 @@ pub enum SynthError {
     #[error("rendering failed: {0}")]
     Render(#[from] facerecon_raster::RenderError),
     #[error("{}", path.display())]
-    Io { path: std::path::PathBuf, #[source] source: std::io::Error },
+    Io {
+        path: std::path::PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
     #[error("{}", path.display())]
-    Image { path: std::path::PathBuf, #[source] source: image::ImageError },
+    Image {
+        path: std::path::PathBuf,
+        #[source]
+        source: image::ImageError,
+    },
 }
 
 impl SynthError {

@@ -49,11 +49,7 @@ fn sh_oracle(l: u32, m: i32, theta: f64, phi: f64) -> f64 {
 }
 
 fn dir(theta: f64, phi: f64) -> [f32; 3] {
-    [
-        (theta.sin() * phi.cos()) as f32,
-        (theta.sin() * phi.sin()) as f32,
-        theta.cos() as f32,
-    ]
+    [(theta.sin() * phi.cos()) as f32, (theta.sin() * phi.sin()) as f32, theta.cos() as f32]
 }
 
 /// Gauss–Legendre nodes and weights on [−1, 1] by Newton iteration on P_n.
@@ -85,9 +81,7 @@ fn gauss_legendre(n: usize) -> Vec<(f64, f64)> {
 fn sh_matches_legendre_recurrence() {
     let mut state = 12345u64;
     let mut rnd = || {
-        state = state
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
+        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
         (state >> 11) as f64 / (1u64 << 53) as f64
     };
     for _ in 0..200 {
@@ -98,10 +92,7 @@ fn sh_matches_legendre_recurrence() {
             for m in -(l as i32)..=(l as i32) {
                 let want = sh_oracle(l, m, theta, phi);
                 let got = y[sh_index(l as usize, m as isize)] as f64;
-                assert!(
-                    (got - want).abs() < 2e-6,
-                    "Y_{l},{m} at θ={theta} φ={phi}: {got} vs {want}"
-                );
+                assert!((got - want).abs() < 2e-6, "Y_{l},{m} at θ={theta} φ={phi}: {got} vs {want}");
             }
         }
     }
@@ -130,11 +121,7 @@ fn sh_is_orthonormal_on_the_sphere() {
     for a in 0..SH_COEFFS {
         for b in 0..SH_COEFFS {
             let want = if a == b { 1.0 } else { 0.0 };
-            assert!(
-                (gram[a][b] - want).abs() < 1e-5,
-                "<Y{a},Y{b}> = {}",
-                gram[a][b]
-            );
+            assert!((gram[a][b] - want).abs() < 1e-5, "<Y{a},Y{b}> = {}", gram[a][b]);
         }
     }
 }
@@ -147,11 +134,7 @@ fn sh_known_values_at_poles_and_axes() {
         let v = ((2 * l + 1) as f64 / (4.0 * PI)).sqrt();
         for m in -(l as isize)..=(l as isize) {
             let i = sh_index(l, m);
-            let (wn, ws) = if m == 0 {
-                (v, v * (-1f64).powi(l as i32))
-            } else {
-                (0.0, 0.0)
-            };
+            let (wn, ws) = if m == 0 { (v, v * (-1f64).powi(l as i32)) } else { (0.0, 0.0) };
             assert!((north[i] as f64 - wn).abs() < 1e-6, "north Y_{l},{m}");
             assert!((south[i] as f64 - ws).abs() < 1e-6, "south Y_{l},{m}");
         }
@@ -169,11 +152,7 @@ fn sh_known_values_at_poles_and_axes() {
         (sh_index(3, -3), 0.0),
     ];
     for (i, want) in expect {
-        assert!(
-            (xa[i] as f64 - want).abs() < 1e-6,
-            "+X basis {i}: {} vs {want}",
-            xa[i]
-        );
+        assert!((xa[i] as f64 - want).abs() < 1e-6, "+X basis {i}: {} vs {want}", xa[i]);
     }
     // +Y axis: Y_1,−1 = √(3/4π).
     let ya = sh_basis([0.0, 1.0, 0.0]);
@@ -203,25 +182,13 @@ fn lit_light_shades_one_and_shade_is_elementwise() {
 // ---- rotations ----
 
 fn rx(t: f64) -> DMat3 {
-    DMat3::from_cols(
-        DVec3::new(1.0, 0.0, 0.0),
-        DVec3::new(0.0, t.cos(), t.sin()),
-        DVec3::new(0.0, -t.sin(), t.cos()),
-    )
+    DMat3::from_cols(DVec3::new(1.0, 0.0, 0.0), DVec3::new(0.0, t.cos(), t.sin()), DVec3::new(0.0, -t.sin(), t.cos()))
 }
 fn ry(t: f64) -> DMat3 {
-    DMat3::from_cols(
-        DVec3::new(t.cos(), 0.0, -t.sin()),
-        DVec3::new(0.0, 1.0, 0.0),
-        DVec3::new(t.sin(), 0.0, t.cos()),
-    )
+    DMat3::from_cols(DVec3::new(t.cos(), 0.0, -t.sin()), DVec3::new(0.0, 1.0, 0.0), DVec3::new(t.sin(), 0.0, t.cos()))
 }
 fn rz(t: f64) -> DMat3 {
-    DMat3::from_cols(
-        DVec3::new(t.cos(), t.sin(), 0.0),
-        DVec3::new(-t.sin(), t.cos(), 0.0),
-        DVec3::new(0.0, 0.0, 1.0),
-    )
+    DMat3::from_cols(DVec3::new(t.cos(), t.sin(), 0.0), DVec3::new(-t.sin(), t.cos(), 0.0), DVec3::new(0.0, 0.0, 1.0))
 }
 
 fn assert_mat_close(a: DMat3, b: DMat3, tol: f64) {
@@ -276,10 +243,7 @@ fn projection_of_known_points() {
     let d = 400.0f64;
     let e = (15f64.to_radians().tan() * d) as f32;
     let top = cam.project([0.0, e, -d as f32], w, h).unwrap();
-    assert!(
-        (top[1] + 0.5).abs() < 1e-3 && (top[0] - 111.5).abs() < 1e-4,
-        "{top:?}"
-    );
+    assert!((top[1] + 0.5).abs() < 1e-3 && (top[0] - 111.5).abs() < 1e-4, "{top:?}");
     // Aspect 1: the same on x, right border at W − 0.5.
     let right = cam.project([e, 0.0, -d as f32], w, h).unwrap();
     assert!((right[0] - 223.5).abs() < 1e-3, "{right:?}");
@@ -301,17 +265,10 @@ fn projection_matrices_match_reference_forms() {
     // the focal factor over the distance, depth hyperbolic in the distance.
     let (n, fa) = (1.0f64, 1000.0f64);
     let f = 1.0 / (15f64.to_radians()).tan();
-    for p in [
-        [30.0f32, -20.0, -450.0],
-        [-5.0, 7.0, -2.0],
-        [100.0, 80.0, -990.0],
-    ] {
+    for p in [[30.0f32, -20.0, -450.0], [-5.0, 7.0, -2.0], [100.0, 80.0, -990.0]] {
         let d = -(p[2] as f64);
         for (m, zref) in [
-            (
-                cam.projection_gl(),
-                (fa + n) / (fa - n) - 2.0 * fa * n / ((fa - n) * d),
-            ),
+            (cam.projection_gl(), (fa + n) / (fa - n) - 2.0 * fa * n / ((fa - n) * d)),
             (cam.projection_zo(), fa / (fa - n) * (1.0 - n / d)),
         ] {
             let c = m * Vec3::from(p).extend(1.0);
@@ -362,13 +319,7 @@ fn sphere_normals_point_outwards_along_position() {
 #[test]
 fn plane_and_cube_corner_normals() {
     // A plane z = 3 tessellated irregularly: every normal is +Z.
-    let p = [
-        [0.0, 0.0, 3.0],
-        [10.0, 0.0, 3.0],
-        [0.0, 7.0, 3.0],
-        [4.0, 5.0, 3.0],
-        [12.0, 9.0, 3.0],
-    ];
+    let p = [[0.0, 0.0, 3.0], [10.0, 0.0, 3.0], [0.0, 7.0, 3.0], [4.0, 5.0, 3.0], [12.0, 9.0, 3.0]];
     let t = [[0, 1, 3], [0, 3, 2], [1, 4, 3]];
     for n in vertex_normals(&p, &t) {
         assert!((Vec3::from(n) - Vec3::Z).length() < 1e-6);
@@ -392,15 +343,9 @@ fn plane_and_cube_corner_normals() {
     let n = Vec3::from(corner(1.0, 1.0, 1.0));
     assert!((n - Vec3::splat(-1.0).normalize()).length() < 1e-6, "{n:?}");
     let n = Vec3::from(corner(1.0, 2.0, 3.0));
-    assert!(
-        (n - Vec3::new(-1.0, -2.0, -3.0).normalize()).length() < 1e-6,
-        "{n:?}"
-    );
+    assert!((n - Vec3::new(-1.0, -2.0, -3.0).normalize()).length() < 1e-6, "{n:?}");
     // Isolated vertex and degenerate triangles: zero normal, no NaN.
-    let n = vertex_normals(
-        &[[0.0; 3], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [5.0; 3]],
-        &[[0, 1, 2]],
-    );
+    let n = vertex_normals(&[[0.0; 3], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [5.0; 3]], &[[0, 1, 2]]);
     assert!(n.iter().all(|v| *v == [0.0; 3]));
     // Out-of-range triangles are ignored and reported by validate_triangles.
     assert_eq!(validate_triangles(3, &[[0, 1, 2], [0, 1, 3]]), Some(1));
@@ -414,9 +359,7 @@ fn shade_matches_the_legendre_oracle_for_every_length_and_reuses_its_buffer() {
     // independent associated-Legendre oracle.
     let mut state = 987u64;
     let mut rnd = || {
-        state = state
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
+        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
         (state >> 11) as f64 / (1u64 << 53) as f64
     };
     let mut light = [[0.0f32; 3]; SH_COEFFS];
@@ -425,13 +368,9 @@ fn shade_matches_the_legendre_oracle_for_every_length_and_reuses_its_buffer() {
     }
     let mut out = vec![[9.0f32; 3]; 3];
     for n in [0usize, 1, 7, 8, 9, 16, 1001] {
-        let angles: Vec<(f64, f64)> = (0..n)
-            .map(|_| ((1.0 - 2.0 * rnd()).acos(), 2.0 * PI * rnd()))
-            .collect();
+        let angles: Vec<(f64, f64)> = (0..n).map(|_| ((1.0 - 2.0 * rnd()).acos(), 2.0 * PI * rnd())).collect();
         let normals: Vec<[f32; 3]> = angles.iter().map(|&(t, p)| dir(t, p)).collect();
-        let albedo: Vec<[f32; 3]> = (0..n)
-            .map(|_| [rnd() as f32, rnd() as f32, rnd() as f32])
-            .collect();
+        let albedo: Vec<[f32; 3]> = (0..n).map(|_| [rnd() as f32, rnd() as f32, rnd() as f32]).collect();
         shade_into(&albedo, &normals, &light, &mut out);
         assert_eq!(out.len(), n);
         for (j, &(theta, phi)) in angles.iter().enumerate() {
@@ -439,8 +378,7 @@ fn shade_matches_the_legendre_oracle_for_every_length_and_reuses_its_buffer() {
                 let mut s = 0.0f64;
                 for l in 0..=4u32 {
                     for m in -(l as i32)..=(l as i32) {
-                        s += sh_oracle(l, m, theta, phi)
-                            * light[sh_index(l as usize, m as isize)][c] as f64;
+                        s += sh_oracle(l, m, theta, phi) * light[sh_index(l as usize, m as isize)][c] as f64;
                     }
                 }
                 let want = albedo[j][c] as f64 * s;
@@ -459,8 +397,21 @@ fn shade_matches_the_legendre_oracle_for_every_length_and_reuses_its_buffer() {
         assert_eq!(shade(&albedo, &normals, &light), out);
     }
     // The shorter input wins.
-    assert_eq!(
-        shade(&[[1.0; 3]; 5], &[[0.0, 0.0, 1.0]; 12], &light).len(),
-        5
-    );
+    assert_eq!(shade(&[[1.0; 3]; 5], &[[0.0, 0.0, 1.0]; 12], &light).len(), 5);
+}
+
+#[test]
+fn block_normalisation_equals_glam() {
+    let mut v: Vec<[f32; 3]> = (0..131)
+        .map(|i| {
+            let t = i as f32;
+            [t.sin() * 3.0, (t * 0.7).cos() * 1e-3, t * 0.01 - 0.5]
+        })
+        .collect();
+    v[5] = [0.0; 3];
+    v[70] = [1e-30, 0.0, 0.0];
+    v[71] = [f32::INFINITY, 0.0, 0.0];
+    let want: Vec<[f32; 3]> = v.iter().map(|x| glam::Vec3::from(*x).normalize_or_zero().to_array()).collect();
+    super::normalize_or_zero(&mut v);
+    assert_eq!(v, want);
 }
