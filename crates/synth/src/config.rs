@@ -2,10 +2,6 @@
 
 use crate::SynthError;
 
-/// Crop-side ranges of the resolution buckets (DESIGN §3), pixels: bucket 0 is open-ended
-/// upwards, the generator caps it at [`SynthConfig::max_crop_side`].
-pub const BUCKET_RANGES: [(f32, f32); 4] = [(224.0, f32::INFINITY), (128.0, 224.0), (64.0, 128.0), (32.0, 64.0)];
-
 /// Resolution bucket of a square crop side `s` (DESIGN §3); `None` below 32 px. The
 /// router's own definition ([`facerecon_vision::crop::Bucket`]), as a JSON-friendly index.
 pub fn bucket_of(side: f32) -> Option<u8> {

@@ -8,15 +8,16 @@ use facerecon_raster::visibility::{BACKGROUND, VisibilityBuffer};
 use facerecon_raster::{Frame, cpu, job::RenderJob};
 use image::{GrayImage, RgbImage};
 
+use crate::SynthError;
 use crate::background::random_background;
-use crate::config::{BUCKET_RANGES, SynthConfig};
+use crate::config::SynthConfig;
 use crate::expression::random_expression;
 use crate::head::{HeadStyle, PartColors};
 use crate::light::random_light;
 use crate::pose::Euler;
 use crate::rng::Rng;
-use crate::truth::{CameraTruth, Crop, GroundTruth, Landmark, PixelBox, TRUTH_FORMAT};
-use crate::SynthError;
+use crate::truth::{CameraTruth, Crop, FaceBox, GroundTruth, Landmark, TRUTH_FORMAT};
+use facerecon_vision::crop::Bucket;
 
 /// Coefficients with a Gaussian prior are drawn N(0, 1) and clamped to ±this many σ
 /// (a 1-in-1.7-million tail; keeps extreme, implausible heads out).
@@ -92,7 +93,9 @@ impl<'m> Generator<'m> {
 
         // --- size and placement ---------------------------------------------------------
         let bucket = cfg.buckets[rng.below(cfg.buckets.len() as u64) as usize] as usize;
-        let (lo, hi) = BUCKET_RANGES[bucket];
+        let (lo, hi) = Bucket::from_index(bucket)
+            .and_then(Bucket::side_range)
+            .ok_or_else(|| SynthError::Config(format!("no bucket {bucket}")))?;
         let hi = hi.min(cfg.max_crop_side);
         let mut side = rng.log_range(lo as f64 * 1.03, hi as f64 * 0.97) as f32;
         let (width, height) = match cfg.image_size {
@@ -108,12 +111,16 @@ impl<'m> Generator<'m> {
         };
         side = side.min(0.95 * width.min(height) as f32);
         let margin = 0.45 * side;
-        let cx = rng.range(margin.min(width as f32 / 2.0) as f64, (width as f32 - margin).max(width as f32 / 2.0) as f64) as f32;
-        let cy = rng.range(margin.min(height as f32 / 2.0) as f64, (height as f32 - margin).max(height as f32 / 2.0) as f64) as f32;
+        let cx = rng
+            .range(margin.min(width as f32 / 2.0) as f64, (width as f32 - margin).max(width as f32 / 2.0) as f64)
+            as f32;
+        let cy = rng
+            .range(margin.min(height as f32 / 2.0) as f64, (height as f32 - margin).max(height as f32 / 2.0) as f64)
+            as f32;
 
         let shape = model.shape(&identity, &expression, Extent::Face).map_err(SynthError::model)?;
         let rotation = euler.axis_angle();
-                let lm_idx = model.landmarks();
+        let lm_idx = model.landmarks();
         let lm_model: Vec<[f32; 3]> = lm_idx.iter().map(|&i| shape[i as usize]).collect();
         let mut camera = Camera { aspect: width as f32 / height as f32, ..Camera::default() };
         let translation = place_face(&lm_model, rotation, &camera, width, height, [cx, cy], side);
@@ -157,7 +164,7 @@ impl<'m> Generator<'m> {
                 Landmark { xy, xyz, visible }
             })
             .collect();
-        let landmark_box = PixelBox::of_points(landmarks.iter().map(|l| l.xy))
+        let landmark_box = FaceBox::of_points(landmarks.iter().map(|l| l.xy))
             .ok_or_else(|| SynthError::Config("the model has no landmarks".into()))?;
         let crop = Crop::of_box(&landmark_box);
         let stem = format!("{index:06}");
@@ -184,7 +191,7 @@ impl<'m> Generator<'m> {
             landmarks,
             landmark_box,
             crop,
-            face_box: PixelBox::of_points(face_px),
+            face_box: FaceBox::of_points(face_px),
             face_pixels,
             head_pixels,
         };
@@ -227,7 +234,15 @@ impl Generator<'_> {
 /// Translation that puts the landmarks' centroid on the ray through pixel `centre` at the
 /// distance where their crop (see [`Crop`]) is `side` pixels: solved on the projection
 /// itself (two fixed-point rounds: the crop side is ∝ 1/distance up to perspective).
-pub fn place_face(lm: &[[f32; 3]], rotation: [f32; 3], camera: &Camera, w: u32, h: u32, centre: [f32; 2], side: f32) -> [f32; 3] {
+pub fn place_face(
+    lm: &[[f32; 3]],
+    rotation: [f32; 3],
+    camera: &Camera,
+    w: u32,
+    h: u32,
+    centre: [f32; 2],
+    side: f32,
+) -> [f32; 3] {
     let r = scene::rotation_matrix(rotation);
     let n = lm.len() as f32;
     let anchor = lm.iter().fold(glam::Vec3::ZERO, |a, p| a + glam::Vec3::from(*p)) / n;
@@ -240,7 +255,7 @@ pub fn place_face(lm: &[[f32; 3]], rotation: [f32; 3], camera: &Camera, w: u32, 
     let crop_of = |t: glam::Vec3| {
         let pose = Pose::new(rotation, t.to_array());
         let pts = pose.apply(lm);
-        let b = PixelBox::of_points(pts.iter().filter_map(|p| camera.project(*p, w, h))).expect("landmarks in front");
+        let b = FaceBox::of_points(pts.iter().filter_map(|p| camera.project(*p, w, h))).expect("landmarks in front");
         Crop::of_box(&b)
     };
     let mut d = 1000.0f32;

@@ -8,28 +8,9 @@ use crate::pose::Euler;
 /// Version tag of the JSON layout.
 pub const TRUTH_FORMAT: &str = "facerecon-synth/1";
 
-/// Axis-aligned box in pixels (0-based, pixel centres at integers; `x1`, `y1` inclusive
-/// extremes of the points or pixels it bounds).
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct PixelBox {
-    pub x0: f32,
-    pub y0: f32,
-    pub x1: f32,
-    pub y1: f32,
-}
-
-impl PixelBox {
-    pub fn of_points(points: impl IntoIterator<Item = [f32; 2]>) -> Option<Self> {
-        let mut b: Option<PixelBox> = None;
-        for [x, y] in points {
-            b = Some(match b {
-                None => PixelBox { x0: x, y0: y, x1: x, y1: y },
-                Some(b) => PixelBox { x0: b.x0.min(x), y0: b.y0.min(y), x1: b.x1.max(x), y1: b.y1.max(y) },
-            });
-        }
-        b
-    }
-}
+/// Boxes are the front end's [`FaceBox`] (0-based pixels, pixel centres at integers;
+/// `x1`, `y1` the inclusive extremes of the points or pixels bounded).
+pub use facerecon_vision::face::FaceBox;
 
 /// The square crop of DESIGN §3 around the landmarks: the landmark box grown by 30 %,
 /// made square (side = 1.3 · max(width, height)), same centre.
@@ -43,10 +24,9 @@ pub struct Crop {
 }
 
 impl Crop {
-    pub fn of_box(b: &PixelBox) -> Self {
+    pub fn of_box(b: &FaceBox) -> Self {
         // The front end's crop rule, so that ground truth and pipeline frame faces alike.
-        let face = facerecon_vision::face::FaceBox { x0: b.x0, y0: b.y0, x1: b.x1, y1: b.y1 };
-        let (left, top, side) = facerecon_vision::crop::crop_square(&face);
+        let (left, top, side) = facerecon_vision::crop::crop_square(b);
         Crop { cx: left + 0.5 * side, cy: top + 0.5 * side, side, bucket: crate::config::bucket_of(side) }
     }
 }
@@ -92,10 +72,10 @@ pub struct GroundTruth {
     pub part_colors: PartColors,
     /// 68 landmarks, iBUG order.
     pub landmarks: Vec<Landmark>,
-    pub landmark_box: PixelBox,
+    pub landmark_box: FaceBox,
     pub crop: Crop,
     /// Box of the face-area pixels of the mask; `None` when the face area is not visible.
-    pub face_box: Option<PixelBox>,
+    pub face_box: Option<FaceBox>,
     pub face_pixels: u64,
     /// Pixels covered by any part of the head.
     pub head_pixels: u64,

@@ -53,6 +53,22 @@ impl Bucket {
         }
     }
 
+    /// The reconstructable buckets, by index.
+    pub const ALL: [Bucket; 4] = [Bucket::B0, Bucket::B1, Bucket::B2, Bucket::B3];
+
+    /// The bucket of an index 0..=3 (`None` otherwise).
+    pub fn from_index(i: usize) -> Option<Bucket> {
+        Self::ALL.get(i).copied()
+    }
+
+    /// The crop sides `[lower, upper)` of the bucket, source pixels (bucket 0 is open
+    /// upwards: `upper` is infinite); `None` for [`Bucket::TooSmall`].
+    pub fn side_range(self) -> Option<(f32, f32)> {
+        let i = self.index()?;
+        let upper = if i == 0 { f32::INFINITY } else { Self::LOWER_BOUNDS[i - 1] };
+        Some((Self::LOWER_BOUNDS[i], upper))
+    }
+
     /// The bucket's index (the row of α in the encoder), `None` for a face too small.
     pub fn index(self) -> Option<usize> {
         match self {
@@ -81,10 +97,7 @@ impl CropTransform {
     /// outer edges are at −0.5 and size − 0.5.
     pub fn from_square(left: f32, top: f32, side: f32, size: u32) -> Self {
         let scale = size as f32 / side;
-        CropTransform {
-            scale,
-            offset: [-0.5 - left * scale, -0.5 - top * scale],
-        }
+        CropTransform { scale, offset: [-0.5 - left * scale, -0.5 - top * scale] }
     }
 
     /// Image point → crop point.
@@ -123,12 +136,7 @@ pub fn crop_face(image: &RgbImage, face: &FaceBox) -> Crop {
     // A degenerate box still yields a valid (black or one-colour) crop, marked too small.
     let safe_side = if side.is_finite() && side > 1e-3 { side } else { 1e-3 };
     let transform = CropTransform::from_square(left, top, safe_side, CROP_SIZE);
-    Crop {
-        image: resample(image, &transform, CROP_SIZE),
-        transform,
-        side,
-        bucket: Bucket::from_side(side),
-    }
+    Crop { image: resample(image, &transform, CROP_SIZE), transform, side, bucket: Bucket::from_side(side) }
 }
 
 /// Catmull-Rom kernel (bicubic, a = −0.5), support [−2, 2].
@@ -154,11 +162,7 @@ fn taps(out: u32, scale: f32, offset: f32, len: i64) -> (i64, Vec<f32>) {
     let first = (centre - radius).floor() as i64 + 1;
     let last = (centre + radius).ceil() as i64 - 1;
     let weight = |i: i64| catmull_rom(((i as f64 - centre) / widen) as f32);
-    let sum: f32 = if last - first < 4096 {
-        (first..=last).map(weight).sum()
-    } else {
-        widen as f32
-    };
+    let sum: f32 = if last - first < 4096 { (first..=last).map(weight).sum() } else { widen as f32 };
     let (lo, hi) = (first.max(0), last.min(len - 1));
     if !(sum.abs() > 1e-12) || lo > hi {
         return (0, Vec::new());
@@ -223,6 +227,21 @@ pub fn degrade_resolution(crop: &RgbImage, target: u32) -> RgbImage {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn side_ranges_tile_the_router() {
+        for (i, b) in Bucket::ALL.iter().enumerate() {
+            assert_eq!(Bucket::from_index(i), Some(*b));
+            let (lo, hi) = b.side_range().unwrap();
+            assert_eq!(Bucket::from_side(lo), *b);
+            assert_eq!(Bucket::from_side(lo - 0.01), if i == 3 { Bucket::TooSmall } else { Bucket::ALL[i + 1] });
+            if hi.is_finite() {
+                assert_eq!(Bucket::from_side(hi), Bucket::ALL[i - 1]);
+            }
+        }
+        assert_eq!(Bucket::from_index(4), None);
+        assert_eq!(Bucket::TooSmall.side_range(), None);
+    }
     use image::Rgb;
 
     fn face(x0: f32, y0: f32, w: f32, h: f32) -> FaceBox {
@@ -301,9 +320,7 @@ mod tests {
     /// A smooth test image: every channel a linear ramp, so resampling must reproduce the
     /// ramp's value at the mapped point.
     fn ramp(w: u32, h: u32) -> RgbImage {
-        RgbImage::from_fn(w, h, |x, y| {
-            Rgb([(20.0 + 0.4 * x as f32) as u8, (30.0 + 0.5 * y as f32) as u8, 128])
-        })
+        RgbImage::from_fn(w, h, |x, y| Rgb([(20.0 + 0.4 * x as f32) as u8, (30.0 + 0.5 * y as f32) as u8, 128]))
     }
 
     #[test]
@@ -369,7 +386,12 @@ mod tests {
         // A smooth image survives almost unchanged.
         let smooth = ramp(224, 224);
         let back = degrade_resolution(&smooth, 96);
-        let err = smooth.pixels().zip(back.pixels()).map(|(a, b)| (i32::from(a.0[0]) - i32::from(b.0[0])).abs()).max().unwrap();
+        let err = smooth
+            .pixels()
+            .zip(back.pixels())
+            .map(|(a, b)| (i32::from(a.0[0]) - i32::from(b.0[0])).abs())
+            .max()
+            .unwrap();
         assert!(err <= 3, "{err}");
     }
 }

@@ -18,6 +18,24 @@ pub struct FaceBox {
 }
 
 impl FaceBox {
+    /// Tight box of a set of points; points with a non-finite coordinate are skipped
+    /// (`None` when none is left).
+    pub fn of_points(points: impl IntoIterator<Item = [f32; 2]>) -> Option<FaceBox> {
+        let mut b: Option<FaceBox> = None;
+        for [x, y] in points.into_iter().filter(|p| p[0].is_finite() && p[1].is_finite()) {
+            b = Some(match b {
+                None => FaceBox { x0: x, y0: y, x1: x, y1: y },
+                Some(b) => FaceBox { x0: b.x0.min(x), y0: b.y0.min(y), x1: b.x1.max(x), y1: b.y1.max(y) },
+            });
+        }
+        b
+    }
+
+    /// All four coordinates finite, with positive width and height.
+    pub fn is_proper(&self) -> bool {
+        [self.x0, self.y0, self.x1, self.y1].iter().all(|v| v.is_finite()) && self.width() > 0.0 && self.height() > 0.0
+    }
+
     pub fn width(&self) -> f32 {
         self.x1 - self.x0
     }
