@@ -8,9 +8,6 @@ use std::process::ExitCode;
 use anyhow::Context;
 use facerecon_vision::crop::Bucket;
 use facerecon_vision::decode::DecodeLimits;
-use facerecon_vision::detect::ViolaJones;
-use facerecon_vision::landmarks::box_from_landmarks::BoxFromLandmarks;
-use facerecon_vision::landmarks::{BoxCalibration, ShapePredictor};
 use facerecon_vision::pipeline::{Face, FrontEnd};
 use image::{Rgb, RgbImage};
 
@@ -50,12 +47,7 @@ struct FaceJson {
 }
 
 pub fn run(args: DetectArgs) -> anyhow::Result<ExitCode> {
-    let detector = ViolaJones::load_default().context("loading the face detector")?;
-    let predictor = ShapePredictor::load(&args.landmark_model)
-        .with_context(|| format!("loading the landmark model {}", args.landmark_model.display()))?;
-    let front = FrontEnd::new(Box::new(detector), Box::new(predictor))
-        .with_calibration(BoxCalibration::viola_jones_to_dlib())
-        .with_refinement(BoxFromLandmarks::dlib_68(), 2)
+    let front = FrontEnd::load_standard(&args.landmark_model)?
         // Boxes, landmarks and buckets only: no encoder crops to make.
         .with_crops(false);
     let limits = DecodeLimits::default();

@@ -14,8 +14,8 @@ mod process_cpu;
 use criterion::{Criterion, criterion_group, criterion_main};
 use facerecon_vision::detect::{DetectorParams, ViolaJones};
 use facerecon_vision::face::{Detection, FaceDetector, ModelRunError};
+use facerecon_vision::landmarks::ShapePredictor;
 use facerecon_vision::landmarks::box_from_landmarks::BoxFromLandmarks;
-use facerecon_vision::landmarks::{BoxCalibration, ShapePredictor};
 use facerecon_vision::pipeline::FrontEnd;
 use std::hint::black_box;
 
@@ -36,7 +36,6 @@ fn photo_640x480() -> image::RgbImage {
     image::imageops::resize(&cropped, 640, 480, image::imageops::FilterType::CatmullRom)
 }
 
-
 fn benches(c: &mut Criterion) {
     let dir = faces300w::dataset_dir();
     let sp = ShapePredictor::load_default().expect("dlib model");
@@ -45,9 +44,13 @@ fn benches(c: &mut Criterion) {
     let img = faces300w::load_rgb(&dir, PHOTO);
     let b = r.face_box();
     c.bench_function("landmarks_per_face", |bench| bench.iter(|| black_box(sp.predict(black_box(&img), &b))));
-    eprintln!("landmarks_per_face: {:.3} ms CPU per call", process_cpu::ms_per_call(300, || {
-        black_box(sp.predict(black_box(&img), &b));
-    }).0);
+    eprintln!(
+        "landmarks_per_face: {:.3} ms CPU per call",
+        process_cpu::ms_per_call(300, || {
+            black_box(sp.predict(black_box(&img), &b));
+        })
+        .0
+    );
 
     // One face through FrontEnd::face (landmarks + crop), without and with 2 refinement
     // passes, both run (no settling): what a pass on a new box costs.
@@ -59,12 +62,18 @@ fn benches(c: &mut Criterion) {
     }
     let det = Detection { face_box: b, score: 1.0, source: "dlib-hog".into() };
     for passes in [0, 2] {
-        let fe = FrontEnd::new(Box::new(NoDetector), Box::new(sp.clone())).with_refinement(BoxFromLandmarks::dlib_68(), passes).with_settle(0.0);
+        let fe = FrontEnd::new(Box::new(NoDetector), Box::new(sp.clone()))
+            .with_refinement(BoxFromLandmarks::dlib_68(), passes)
+            .with_settle(0.0);
         let name = format!("face_with_{passes}_refinement_passes");
         c.bench_function(&name, |bench| bench.iter(|| black_box(fe.face(black_box(&img), det.clone()).unwrap())));
-        eprintln!("{name}: {:.3} ms CPU per call", process_cpu::ms_per_call(300, || {
-            black_box(fe.face(black_box(&img), det.clone()).unwrap());
-        }).0);
+        eprintln!(
+            "{name}: {:.3} ms CPU per call",
+            process_cpu::ms_per_call(300, || {
+                black_box(fe.face(black_box(&img), det.clone()).unwrap());
+            })
+            .0
+        );
     }
 
     let small = photo_640x480();
@@ -81,16 +90,17 @@ fn benches(c: &mut Criterion) {
         ("detect_landmarks_crop_640x480", ViolaJones::load_default().expect("cascades"), true),
         ("detect_and_landmarks_640x480_every_window", every_window, false),
     ] {
-        let front = FrontEnd::new(Box::new(det), Box::new(sp.clone()))
-            .with_calibration(BoxCalibration::viola_jones_to_dlib())
-            .with_refinement(BoxFromLandmarks::dlib_68(), 2)
-            .with_crops(crops);
+        let front = FrontEnd::standard(det, sp.clone()).with_crops(crops);
         let faces = front.run(&small).unwrap();
         eprintln!("{name}: {} face(s)", faces.len());
         c.bench_function(name, |bench| bench.iter(|| black_box(front.run(black_box(&small)).unwrap())));
-        eprintln!("{name}: {:.3} ms CPU per call (all threads)", process_cpu::ms_per_call(30, || {
-            black_box(front.run(black_box(&small)).unwrap());
-        }).0);
+        eprintln!(
+            "{name}: {:.3} ms CPU per call (all threads)",
+            process_cpu::ms_per_call(30, || {
+                black_box(front.run(black_box(&small)).unwrap());
+            })
+            .0
+        );
     }
 }
 

@@ -13,9 +13,12 @@ use rayon::prelude::*;
 
 use crate::crop::{self, Bucket, Crop};
 use crate::decode::{self, DecodeError, DecodeLimits};
+use crate::detect::{DetectError, ViolaJones};
 use crate::face::{Detection, FaceBox, FaceDetector, LandmarkPredictor, Landmarks, ModelRunError};
-use crate::landmarks::BoxCalibration;
 use crate::landmarks::box_from_landmarks::BoxFromLandmarks;
+use crate::landmarks::{BoxCalibration, ShapePredictor, ShapePredictorError};
+use facerecon_model::ErrorKind;
+use std::path::Path;
 
 /// One face found by the front end.
 #[derive(Clone, Debug)]
@@ -38,15 +41,58 @@ pub struct Face {
     pub crop: Option<Crop>,
 }
 
-/// Why the front end failed on an image.
+/// Why the front end failed on an image. Messages name each cause once (no `source`
+/// chain that would repeat it).
 #[derive(Debug, thiserror::Error)]
 pub enum FrontEndError {
     #[error("cannot decode image: {0}")]
-    Decode(#[from] DecodeError),
+    Decode(DecodeError),
     #[error("face detection failed: {0}")]
     Detect(ModelRunError),
     #[error("landmark prediction failed: {0}")]
     Landmarks(ModelRunError),
+    /// A caller-supplied box that is not a proper box (non-finite, empty or inverted).
+    #[error("invalid face box ({x0}, {y0})–({x1}, {y1}): need finite coordinates with x0 < x1 and y0 < y1")]
+    InvalidBox { x0: f32, y0: f32, x1: f32, y1: f32 },
+    /// Caller-supplied landmarks that cannot be used.
+    #[error("invalid landmarks: {0}")]
+    InvalidLandmarks(String),
+    #[error("{given} faces given, at most {limit} are processed per image")]
+    TooManyFaces { given: usize, limit: usize },
+}
+
+impl From<DecodeError> for FrontEndError {
+    fn from(e: DecodeError) -> Self {
+        FrontEndError::Decode(e)
+    }
+}
+
+impl FrontEndError {
+    /// Whose fault (see [`ErrorKind`]): bad bytes, boxes and landmarks are the input's,
+    /// an image over the size limits is out of resources, a failing model is internal.
+    pub fn kind(&self) -> ErrorKind {
+        match self {
+            FrontEndError::Decode(
+                DecodeError::EncodedTooLarge { .. }
+                | DecodeError::TooManyPixels { .. }
+                | DecodeError::AllocationLimit { .. },
+            ) => ErrorKind::Resources,
+            FrontEndError::Decode(_) | FrontEndError::InvalidBox { .. } | FrontEndError::InvalidLandmarks(_) => {
+                ErrorKind::Input
+            }
+            FrontEndError::TooManyFaces { .. } => ErrorKind::Input,
+            FrontEndError::Detect(_) | FrontEndError::Landmarks(_) => ErrorKind::Internal,
+        }
+    }
+}
+
+/// Why the standard front end could not be loaded.
+#[derive(Debug, thiserror::Error)]
+pub enum FrontEndLoadError {
+    #[error("loading the face detector: {0}")]
+    Detector(DetectError),
+    #[error("loading the landmark model: {0}")]
+    Landmarks(ShapePredictorError),
 }
 
 /// The configured front end.
@@ -64,7 +110,31 @@ impl FrontEnd {
     /// A front end from any detector and predictor; boxes are passed on unchanged until
     /// [`Self::with_calibration`] says otherwise.
     pub fn new(detector: Box<dyn FaceDetector>, predictor: Box<dyn LandmarkPredictor>) -> Self {
-        FrontEnd { detector, predictor, calibration: BoxCalibration::identity(), refinement: None, crops: true, max_faces: 64 }
+        FrontEnd {
+            detector,
+            predictor,
+            calibration: BoxCalibration::identity(),
+            refinement: None,
+            crops: true,
+            max_faces: 64,
+        }
+    }
+
+    /// The product's front end (DESIGN §3): Viola–Jones on OpenCV's cascades, its boxes
+    /// calibrated to dlib's convention, dlib's 68 points with up to 2 refinement passes.
+    /// The CLI, the service, the benchmarks and the evaluation all use this one assembly.
+    pub fn standard(detector: ViolaJones, predictor: ShapePredictor) -> Self {
+        FrontEnd::new(Box::new(detector), Box::new(predictor))
+            .with_calibration(BoxCalibration::viola_jones_to_dlib())
+            .with_refinement(BoxFromLandmarks::dlib_68(), 2)
+    }
+
+    /// [`Self::standard`] from the installed cascades and the dlib model at `landmark_model`
+    /// ([`crate::landmarks::DEFAULT_MODEL_PATH`] by default).
+    pub fn load_standard(landmark_model: &Path) -> Result<Self, FrontEndLoadError> {
+        let detector = ViolaJones::load_default().map_err(FrontEndLoadError::Detector)?;
+        let predictor = ShapePredictor::load(landmark_model).map_err(FrontEndLoadError::Landmarks)?;
+        Ok(Self::standard(detector, predictor))
     }
 
     pub fn with_calibration(mut self, calibration: BoxCalibration) -> Self {
@@ -118,18 +188,71 @@ impl FrontEnd {
     /// Runs on a decoded image. Faces come largest first.
     pub fn run(&self, image: &RgbImage) -> Result<Vec<Face>, FrontEndError> {
         let mut detections = self.detector.detect(image).map_err(FrontEndError::Detect)?;
-        detections.retain(|d| {
-            let b = &d.face_box;
-            [b.x0, b.y0, b.x1, b.y1].iter().all(|v| v.is_finite()) && b.width() > 0.0 && b.height() > 0.0
-        });
+        detections.retain(|d| d.face_box.is_proper());
         detections.sort_by(|a, b| b.face_box.area().total_cmp(&a.face_box.area()));
         detections.truncate(self.max_faces);
         // Faces are independent: one per core when a photo has several.
         detections.into_par_iter().map(|d| self.face(image, d)).collect()
     }
 
-    /// Landmarks, crop and bucket for one detection.
+    /// Faces for caller-supplied boxes (instead of the detector's), in the order given.
+    /// Every box is checked, and at most [`Self::max_faces`] are accepted.
+    pub fn run_boxes(&self, image: &RgbImage, boxes: &[FaceBox]) -> Result<Vec<Face>, FrontEndError> {
+        if boxes.len() > self.max_faces {
+            return Err(FrontEndError::TooManyFaces { given: boxes.len(), limit: self.max_faces });
+        }
+        boxes
+            .par_iter()
+            .map(|b| self.face(image, Detection { face_box: *b, score: 1.0, source: CALLER_SOURCE.into() }))
+            .collect()
+    }
+
+    /// A face from caller-supplied 68 landmarks (image pixels, iBUG order): no detection
+    /// and no landmark prediction, the box is the landmarks' own. Points must be finite;
+    /// points outside the image are allowed (a face cut by the border), but the landmark
+    /// box must overlap the image.
+    pub fn face_from_landmarks(&self, image: &RgbImage, points: &[[f32; 2]]) -> Result<Face, FrontEndError> {
+        if points.len() != 68 {
+            return Err(FrontEndError::InvalidLandmarks(format!(
+                "{} points given, 68 needed (iBUG order)",
+                points.len()
+            )));
+        }
+        if let Some(i) = points.iter().position(|p| !(p[0].is_finite() && p[1].is_finite())) {
+            return Err(FrontEndError::InvalidLandmarks(format!("point {} is not finite", i + 1)));
+        }
+        let landmark_box = FaceBox::of_points(points.iter().copied())
+            .filter(FaceBox::is_proper)
+            .ok_or_else(|| FrontEndError::InvalidLandmarks("the points span no area".into()))?;
+        let (w, h) = (image.width() as f32, image.height() as f32);
+        if landmark_box.x1 < -0.5 || landmark_box.y1 < -0.5 || landmark_box.x0 > w - 0.5 || landmark_box.y0 > h - 0.5 {
+            return Err(FrontEndError::InvalidLandmarks(format!(
+                "the points lie outside the {}×{} image",
+                image.width(),
+                image.height()
+            )));
+        }
+        let (_, _, side) = crop::crop_square(&landmark_box);
+        let bucket = Bucket::from_side(side);
+        let crop = (self.crops && bucket != Bucket::TooSmall).then(|| crop::crop_face(image, &landmark_box));
+        Ok(Face {
+            detection: Detection { face_box: landmark_box, score: 1.0, source: CALLER_SOURCE.into() },
+            landmark_input_box: landmark_box,
+            landmark_passes: 0,
+            landmarks: Landmarks { points: points.to_vec(), confidence: vec![1.0; 68] },
+            landmark_box,
+            bucket,
+            crop,
+        })
+    }
+
+    /// Landmarks, crop and bucket for one detection. The box is checked (a caller may
+    /// supply it): non-finite, empty or inverted boxes are refused.
     pub fn face(&self, image: &RgbImage, detection: Detection) -> Result<Face, FrontEndError> {
+        let b = detection.face_box;
+        if !b.is_proper() {
+            return Err(FrontEndError::InvalidBox { x0: b.x0, y0: b.y0, x1: b.x1, y1: b.y1 });
+        }
         let mut landmark_input_box = self.calibration.apply(&detection.source, &detection.face_box);
         let predict = |face_box: FaceBox| {
             let input = Detection { face_box, ..detection.clone() };
@@ -157,6 +280,9 @@ impl FrontEnd {
         Ok(Face { detection, landmark_input_box, landmark_passes, landmarks, landmark_box, bucket, crop })
     }
 }
+
+/// [`Detection::source`] of boxes and landmarks a caller supplied.
+pub const CALLER_SOURCE: &str = "caller";
 
 /// The landmark passes after the first one.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -186,18 +312,9 @@ impl Refinement {
     }
 }
 
-/// Tight box of a set of points (`None` when empty or not finite).
+/// Tight box of a set of points (`None` when empty or not finite): [`FaceBox::of_points`].
 pub fn bounding_box(points: &[[f32; 2]]) -> Option<FaceBox> {
-    let mut it = points.iter().filter(|p| p[0].is_finite() && p[1].is_finite());
-    let &[x, y] = it.next()?;
-    let mut b = FaceBox { x0: x, y0: y, x1: x, y1: y };
-    for &[x, y] in it {
-        b.x0 = b.x0.min(x);
-        b.y0 = b.y0.min(y);
-        b.x1 = b.x1.max(x);
-        b.y1 = b.y1.max(y);
-    }
-    Some(b)
+    FaceBox::of_points(points.iter().copied())
 }
 
 #[cfg(test)]
@@ -246,7 +363,11 @@ mod tests {
         let mut cal = BoxCalibration::identity();
         cal.by_source.insert(
             "b".into(),
-            crate::landmarks::box_convention::BoxMap { sw: 0.5, sh: 0.5, ..crate::landmarks::box_convention::BoxMap::IDENTITY },
+            crate::landmarks::box_convention::BoxMap {
+                sw: 0.5,
+                sh: 0.5,
+                ..crate::landmarks::box_convention::BoxMap::IDENTITY
+            },
         );
         let fe = FrontEnd::new(Box::new(Fixed(dets)), Box::new(Corners)).with_calibration(cal);
         let img = RgbImage::new(400, 300);
@@ -268,11 +389,16 @@ mod tests {
         assert_eq!(faces[1].detection.face_box.x0, 10.0);
 
         // Without crops: the same faces, boxes, landmarks and buckets, no crop.
-        let plain = FrontEnd::new(Box::new(Fixed(fe_dets())), Box::new(Corners)).with_calibration(fe.calibration().clone()).with_crops(false);
+        let plain = FrontEnd::new(Box::new(Fixed(fe_dets())), Box::new(Corners))
+            .with_calibration(fe.calibration().clone())
+            .with_crops(false);
         let bare = plain.run(&img).unwrap();
         assert_eq!(bare.len(), 2);
         for (a, b) in faces.iter().zip(&bare) {
-            assert_eq!((a.landmark_box, a.bucket, &a.landmarks.points), (b.landmark_box, b.bucket, &b.landmarks.points));
+            assert_eq!(
+                (a.landmark_box, a.bucket, &a.landmarks.points),
+                (b.landmark_box, b.bucket, &b.landmarks.points)
+            );
             assert!(b.crop.is_none());
         }
     }
@@ -323,5 +449,55 @@ mod tests {
         let fe = FrontEnd::new(Box::new(Fixed(vec![])), Box::new(Failing));
         assert!(fe.run(&RgbImage::new(64, 64)).unwrap().is_empty());
         assert!(matches!(fe.run_bytes(b"garbage", &DecodeLimits::default()), Err(FrontEndError::Decode(_))));
+    }
+
+    #[test]
+    fn caller_boxes_and_landmarks_are_checked() {
+        let img = RgbImage::new(100, 80);
+        let fe = FrontEnd::new(Box::new(Fixed(vec![])), Box::new(Corners));
+        let d = |x0: f32, y0: f32, x1: f32, y1: f32| FaceBox { x0, y0, x1, y1 };
+        for bad in [
+            d(f32::NAN, 0.0, 10.0, 10.0),
+            d(10.0, 10.0, 10.0, 20.0),
+            d(20.0, 0.0, 10.0, 10.0),
+            d(0.0, 0.0, f32::INFINITY, 9.0),
+        ] {
+            let e = fe.run_boxes(&img, &[bad]).unwrap_err();
+            assert!(matches!(e, FrontEndError::InvalidBox { .. }), "{e}");
+            assert_eq!(e.kind(), ErrorKind::Input);
+        }
+        let ok = fe.run_boxes(&img, &[d(10.0, 10.0, 50.0, 60.0)]).unwrap();
+        assert_eq!(ok.len(), 1);
+        assert_eq!(ok[0].detection.source, CALLER_SOURCE);
+        let many = vec![d(10.0, 10.0, 50.0, 60.0); fe.max_faces + 1];
+        assert!(matches!(fe.run_boxes(&img, &many), Err(FrontEndError::TooManyFaces { .. })));
+
+        let mut pts: Vec<[f32; 2]> =
+            (0..68).map(|i| [20.0 + (i % 10) as f32 * 4.0, 15.0 + (i / 10) as f32 * 5.0]).collect();
+        let f = fe.face_from_landmarks(&img, &pts).unwrap();
+        assert_eq!(f.landmarks.points, pts);
+        assert_eq!(f.landmark_box, FaceBox { x0: 20.0, y0: 15.0, x1: 56.0, y1: 45.0 });
+        assert!(fe.face_from_landmarks(&img, &pts[..67]).unwrap_err().to_string().contains("68"));
+        pts[5][1] = f32::NAN;
+        assert!(fe.face_from_landmarks(&img, &pts).unwrap_err().to_string().contains("point 6"));
+        let outside: Vec<[f32; 2]> = (0..68).map(|i| [500.0 + i as f32, 300.0 + i as f32]).collect();
+        assert!(fe.face_from_landmarks(&img, &outside).unwrap_err().to_string().contains("outside"));
+        // A face cut by the border is accepted.
+        let cut: Vec<[f32; 2]> = (0..68).map(|i| [-20.0 + i as f32, 10.0 + (i % 7) as f32]).collect();
+        assert!(fe.face_from_landmarks(&img, &cut).is_ok());
+    }
+
+    #[test]
+    fn decode_errors_print_their_cause_once() {
+        let e = FrontEndError::from(DecodeError::TooManyPixels {
+            width: 50000,
+            height: 50000,
+            pixels: 2_500_000_000,
+            limit: 1,
+        });
+        let text = format!("{e}");
+        assert_eq!(text.matches("too large").count(), 1, "{text}");
+        assert!(std::error::Error::source(&e).is_none());
+        assert_eq!(e.kind(), ErrorKind::Resources);
     }
 }
