@@ -52,14 +52,7 @@ pub enum ModelCommand {
 pub fn run(c: ModelCommand) -> anyhow::Result<ExitCode> {
     match c {
         ModelCommand::ImportIct { source, output } => import_ict(&source, output),
-        ModelCommand::ImportBfm {
-            mat,
-            exp,
-            exp_std,
-            exp_index,
-            landmarks,
-            output,
-        } => import_bfm(
+        ModelCommand::ImportBfm { mat, exp, exp_std, exp_index, landmarks, output } => import_bfm(
             &facerecon_model::bfm::BfmSources {
                 mat: &mat,
                 exp: &exp,
@@ -77,10 +70,7 @@ pub fn run(c: ModelCommand) -> anyhow::Result<ExitCode> {
 /// `crates/model/Cargo.toml`, else the current directory.
 fn repository_root() -> PathBuf {
     let cwd = std::env::current_dir().unwrap_or_else(|_| PathBuf::from("."));
-    cwd.ancestors()
-        .find(|a| a.join("crates/model/Cargo.toml").is_file())
-        .map(Path::to_path_buf)
-        .unwrap_or(cwd)
+    cwd.ancestors().find(|a| a.join("crates/model/Cargo.toml").is_file()).map(Path::to_path_buf).unwrap_or(cwd)
 }
 
 fn import_ict(source: &Path, output: Option<PathBuf>) -> anyhow::Result<ExitCode> {
@@ -94,12 +84,10 @@ fn import_ict(source: &Path, output: Option<PathBuf>) -> anyhow::Result<ExitCode
     }
     let output = output.unwrap_or_else(|| repository_root().join(DEFAULT_ICT_OUTPUT));
     let t0 = Instant::now();
-    let (model, report) = ict::import_with_report(&abs)
-        .with_context(|| format!("importing ICT-FaceKit from {}", abs.display()))?;
+    let (model, report) =
+        ict::import_with_report(&abs).with_context(|| format!("importing ICT-FaceKit from {}", abs.display()))?;
     let import_s = t0.elapsed().as_secs_f64();
-    model
-        .save(&output)
-        .with_context(|| format!("writing {}", output.display()))?;
+    model.save(&output).with_context(|| format!("writing {}", output.display()))?;
     println!("imported {} in {import_s:.2} s", abs.display());
     println!(
         "  albedo GP: {} modes from {} inducing vertices in {:.2} s, explained variance {:.1} % (Nyström {:.1} %)",
@@ -111,9 +99,7 @@ fn import_ict(source: &Path, output: Option<PathBuf>) -> anyhow::Result<ExitCode
     );
     println!(
         "  mirror distance (neutral, x → −x): face max {:.3} mm, mean {:.3} mm; whole mesh max {:.3} mm",
-        report.max_mirror_distance_face_mm,
-        report.mean_mirror_distance_face_mm,
-        report.max_mirror_distance_mm
+        report.max_mirror_distance_face_mm, report.mean_mirror_distance_face_mm, report.max_mirror_distance_mm
     );
     print_summary(&model);
     println!("wrote {}", output.display());
@@ -122,16 +108,9 @@ fn import_ict(source: &Path, output: Option<PathBuf>) -> anyhow::Result<ExitCode
 
 fn import_bfm(src: &facerecon_model::bfm::BfmSources, output: &Path) -> anyhow::Result<ExitCode> {
     let t0 = Instant::now();
-    let model = facerecon_model::bfm::import(src).with_context(|| {
-        format!(
-            "importing BFM from {} and {}",
-            src.mat.display(),
-            src.exp.display()
-        )
-    })?;
-    model
-        .save(output)
-        .with_context(|| format!("writing {}", output.display()))?;
+    let model = facerecon_model::bfm::import(src)
+        .with_context(|| format!("importing BFM from {} and {}", src.mat.display(), src.exp.display()))?;
+    model.save(output).with_context(|| format!("writing {}", output.display()))?;
     println!("imported in {:.2} s", t0.elapsed().as_secs_f64());
     print_summary(&model);
     println!("wrote {}", output.display());
@@ -143,26 +122,15 @@ fn print_summary(m: &MorphableModel) {
     println!("  name:       {}", meta.name);
     println!("  source:     {}", meta.source);
     println!("  licence:    {}", meta.licence);
-    println!(
-        "  units:      {}   format version {}",
-        meta.units, meta.format_version
-    );
-    for (n, b) in [
-        ("identity", meta.identity),
-        ("expression", meta.expression),
-        ("albedo", meta.albedo),
-    ] {
+    println!("  units:      {}   format version {}", meta.units, meta.format_version);
+    for (n, b) in [("identity", meta.identity), ("expression", meta.expression), ("albedo", meta.albedo)] {
         println!("  {n:<11} {} modes, prior {}", b.count, b.prior.as_str());
     }
     println!(
         "  vertices:   {} ({} in the face area)   triangles: {} ({} in the face area)",
         meta.vertex_count, meta.face_vertex_count, meta.triangle_count, meta.face_triangle_count
     );
-    println!(
-        "  UVs:        {}   landmarks: {}",
-        m.uvs().0.len(),
-        m.landmarks().len()
-    );
+    println!("  UVs:        {}   landmarks: {}", m.uvs().0.len(), m.landmarks().len());
     println!("  regions:    {}", meta.region_names.join(", "));
     if !meta.expression_names.is_empty() {
         println!("  expressions: {}", meta.expression_names.join(" "));
@@ -171,19 +139,13 @@ fn print_summary(m: &MorphableModel) {
 
 fn info(file: &Path) -> anyhow::Result<ExitCode> {
     let bytes = std::fs::read(file).with_context(|| format!("reading {}", file.display()))?;
-    let model = MorphableModel::from_bytes(&bytes)
-        .with_context(|| format!("{} is not a valid model file", file.display()))?;
+    let model =
+        MorphableModel::from_bytes(&bytes).with_context(|| format!("{} is not a valid model file", file.display()))?;
     println!("{}: {:.1} MB", file.display(), bytes.len() as f64 / 1e6);
     print_summary(&model);
     println!("  tensors:");
     for t in format::tensor_summary(&bytes)? {
-        println!(
-            "    {:<18} {:<4} {:?}  {:.2} MB",
-            t.name,
-            t.dtype,
-            t.shape,
-            t.bytes as f64 / 1e6
-        );
+        println!("    {:<18} {:<4} {:?}  {:.2} MB", t.name, t.dtype, t.shape, t.bytes as f64 / 1e6);
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -65,7 +65,9 @@ pub fn run(args: SynthArgs) -> anyhow::Result<ExitCode> {
         ..SynthConfig::default()
     };
     let model: std::sync::Arc<MorphableModel> = match &args.model {
-        Some(p) => std::sync::Arc::new(MorphableModel::load(p).with_context(|| format!("loading model {}", p.display()))?),
+        Some(p) => {
+            std::sync::Arc::new(MorphableModel::load(p).with_context(|| format!("loading model {}", p.display()))?)
+        }
         None => facerecon_model::ict::load_default().context("building the default ICT model")?,
     };
     let generator = Generator::new(&model, config)?;
@@ -75,7 +77,8 @@ pub fn run(args: SynthArgs) -> anyhow::Result<ExitCode> {
             .expect("valid progress template"),
     );
     let start = std::time::Instant::now();
-    let entries = pool.install(|| output::generate_to_dir(&generator, args.seed, args.count, &args.out, &|n| bar.set_position(n)))?;
+    let entries = pool
+        .install(|| output::generate_to_dir(&generator, args.seed, args.count, &args.out, &|n| bar.set_position(n)))?;
     bar.finish_and_clear();
     let secs = start.elapsed().as_secs_f64();
     let mut per_bucket = [0u64; 5];

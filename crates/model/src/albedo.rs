@@ -105,11 +105,7 @@ fn seg_dist(p: [f32; 3], a: [f32; 3], b: [f32; 3]) -> f32 {
     let ab = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
     let ap = [p[0] - a[0], p[1] - a[1], p[2] - a[2]];
     let l2 = ab[0] * ab[0] + ab[1] * ab[1] + ab[2] * ab[2];
-    let t = if l2 > 0.0 {
-        ((ap[0] * ab[0] + ap[1] * ab[1] + ap[2] * ab[2]) / l2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
+    let t = if l2 > 0.0 { ((ap[0] * ab[0] + ap[1] * ab[1] + ap[2] * ab[2]) / l2).clamp(0.0, 1.0) } else { 0.0 };
     dist(p, [a[0] + t * ab[0], a[1] + t * ab[1], a[2] + t * ab[2]])
 }
 
@@ -119,9 +115,7 @@ fn inside_xy(p: [f32; 3], poly: &[[f32; 3]]) -> bool {
     let mut j = poly.len() - 1;
     for i in 0..poly.len() {
         let (a, b) = (poly[i], poly[j]);
-        if (a[1] > p[1]) != (b[1] > p[1])
-            && p[0] < (b[0] - a[0]) * (p[1] - a[1]) / (b[1] - a[1]) + a[0]
-        {
+        if (a[1] > p[1]) != (b[1] > p[1]) && p[0] < (b[0] - a[0]) * (p[1] - a[1]) / (b[1] - a[1]) + a[0] {
             inside = !inside;
         }
         j = i;
@@ -139,9 +133,7 @@ pub fn mean_albedo(input: &AlbedoInput) -> Vec<f32> {
     // of the face; the 0/1 weight is then smoothed over the mesh.
     let lip_poly: Vec<[f32; 3]> = (48..60).map(lm).collect();
     let lip_z = lip_poly.iter().map(|q| q[2]).fold(f32::INFINITY, f32::min) - 10.0;
-    let mut lip: Vec<f32> = (0..nf)
-        .map(|v| (p[v][2] > lip_z && inside_xy(p[v], &lip_poly)) as u8 as f32)
-        .collect();
+    let mut lip: Vec<f32> = (0..nf).map(|v| (p[v][2] > lip_z && inside_xy(p[v], &lip_poly)) as u8 as f32).collect();
     let mut nbrs: Vec<Vec<u32>> = vec![Vec::new(); nf];
     for t in input.triangles {
         if t.iter().all(|&v| (v as usize) < nf) {
@@ -161,19 +153,13 @@ pub fn mean_albedo(input: &AlbedoInput) -> Vec<f32> {
     }
     // Brows: within a few mm of the brow polylines (17–21, 22–26).
     let brow = |q: [f32; 3]| {
-        let d = (17..21)
-            .chain(22..26)
-            .map(|i| seg_dist(q, lm(i), lm(i + 1)))
-            .fold(f32::INFINITY, f32::min);
+        let d = (17..21).chain(22..26).map(|i| seg_dist(q, lm(i), lm(i + 1))).fold(f32::INFINITY, f32::min);
         1.0 - smoothstep(2.0, 7.0, d)
     };
     // Cheeks: Gaussian blobs between the jaw and the nose wings.
     let cheeks = [mid(lm(2), lm(31)), mid(lm(14), lm(35))];
     let blush = |q: [f32; 3]| {
-        cheeks
-            .iter()
-            .map(|c| (-(dist(q, *c).powi(2)) / (2.0 * 15.0f32 * 15.0)).exp())
-            .fold(0.0, f32::max)
+        cheeks.iter().map(|c| (-(dist(q, *c).powi(2)) / (2.0 * 15.0f32 * 15.0)).exp()).fold(0.0, f32::max)
     };
     let mut out = Vec::with_capacity(p.len() * 3);
     for (v, q) in p.iter().enumerate() {
@@ -182,11 +168,7 @@ pub fn mean_albedo(input: &AlbedoInput) -> Vec<f32> {
             c = mix(c, BROWS, 0.6 * brow(*q));
             mix(c, LIPS, lip[v].clamp(0.0, 1.0))
         } else {
-            let name = input
-                .region_names
-                .get(input.region_ids[v] as usize)
-                .copied()
-                .unwrap_or("");
+            let name = input.region_names.get(input.region_ids[v] as usize).copied().unwrap_or("");
             region_colour(name)
         };
         out.extend_from_slice(&c);
@@ -210,10 +192,7 @@ fn mid(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
 
 fn k_base(a: [f64; 3], b: [f64; 3]) -> f64 {
     let d2 = (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2);
-    SCALES_MM
-        .iter()
-        .map(|&(l, w)| w * (-d2 / (2.0 * l * l)).exp())
-        .sum()
+    SCALES_MM.iter().map(|&(l, w)| w * (-d2 / (2.0 * l * l)).exp()).sum()
 }
 
 /// Symmetrised (un-normalised) spatial kernel.
@@ -238,13 +217,8 @@ pub fn colour_covariance() -> [[f64; 3]; 3] {
 /// Farthest-point sampling of `m` of the points, starting at the point nearest the centroid.
 fn farthest_points(p: &[[f64; 3]], m: usize) -> Vec<usize> {
     let n = p.len();
-    let c = p
-        .iter()
-        .fold([0.0; 3], |s, q| [s[0] + q[0], s[1] + q[1], s[2] + q[2]])
-        .map(|x| x / n as f64);
-    let d = |a: [f64; 3], b: [f64; 3]| {
-        (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)
-    };
+    let c = p.iter().fold([0.0; 3], |s, q| [s[0] + q[0], s[1] + q[1], s[2] + q[2]]).map(|x| x / n as f64);
+    let d = |a: [f64; 3], b: [f64; 3]| (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2);
     let mut first = 0;
     for i in 0..n {
         if d(p[i], c) < d(p[first], c) {
@@ -273,9 +247,7 @@ fn sorted_eigen(m: DMatrix<f64>) -> (Vec<f64>, DMatrix<f64>) {
     let mut order: Vec<usize> = (0..e.eigenvalues.len()).collect();
     order.sort_by(|&a, &b| e.eigenvalues[b].total_cmp(&e.eigenvalues[a]));
     let vals = order.iter().map(|&i| e.eigenvalues[i]).collect();
-    let vecs = DMatrix::from_fn(e.eigenvectors.nrows(), order.len(), |r, c| {
-        e.eigenvectors[(r, order[c])]
-    });
+    let vecs = DMatrix::from_fn(e.eigenvectors.nrows(), order.len(), |r, c| e.eigenvectors[(r, order[c])]);
     (vals, vecs)
 }
 
@@ -289,15 +261,11 @@ pub fn gp_basis(face: &[[f32; 3]]) -> Result<(Vec<f32>, BuildReport), ModelError
 
     let ind = farthest_points(&p, INDUCING);
     let m = ind.len();
-    let kmm = DMatrix::from_fn(m, m, |a, b| {
-        k(ind[a], ind[b]) + if a == b { 1e-8 } else { 0.0 }
-    });
+    let kmm = DMatrix::from_fn(m, m, |a, b| k(ind[a], ind[b]) + if a == b { 1e-8 } else { 0.0 });
     let (d, v) = sorted_eigen(kmm);
     let keep = d.iter().take_while(|&&x| x > d[0] * 1e-10).count();
     if keep == 0 {
-        return Err(ModelError::Numeric(
-            "inducing kernel matrix has no positive eigenvalue".into(),
-        ));
+        return Err(ModelError::Numeric("inducing kernel matrix has no positive eigenvalue".into()));
     }
     // V D^{-1/2}, m × keep.
     let vd = DMatrix::from_fn(m, keep, |r, c| v[(r, c)] / d[c].sqrt());
@@ -319,10 +287,7 @@ pub fn gp_basis(face: &[[f32; 3]]) -> Result<(Vec<f32>, BuildReport), ModelError
     pairs.sort_by(|a, b| b.0.total_cmp(&a.0));
     pairs.truncate(ALBEDO_MODES);
     if pairs.len() < ALBEDO_MODES {
-        return Err(ModelError::Numeric(format!(
-            "only {} positive albedo modes",
-            pairs.len()
-        )));
+        return Err(ModelError::Numeric(format!("only {} positive albedo modes", pairs.len())));
     }
     // Spatial mode i scaled by √s_i is B·w_i.
     let spatial_needed = pairs.iter().map(|p| p.1).max().unwrap_or(0) + 1;

@@ -24,9 +24,7 @@ use std::path::Path;
 
 use crate::error::ModelError;
 use crate::mat::{self, MatArray};
-use crate::morphable::{
-    Block, FORMAT_VERSION, ModelMeta, ModelParts, MorphableModel, Prior, as_vec3,
-};
+use crate::morphable::{Block, FORMAT_VERSION, ModelMeta, ModelParts, MorphableModel, Prior, as_vec3};
 use crate::{regions, symmetry};
 
 pub const IDENTITY_MODES: usize = 80;
@@ -61,10 +59,7 @@ fn get<'a>(vars: &'a [MatArray], name: &str, file: &str) -> Result<&'a MatArray,
 fn finite(v: &MatArray, file: &str) -> Result<(), ModelError> {
     match v.data.iter().position(|x| !x.is_finite()) {
         None => Ok(()),
-        Some(i) => Err(ModelError::format(
-            file,
-            format!("`{}` value {i} is not finite", v.name),
-        )),
+        Some(i) => Err(ModelError::format(file, format!("`{}` value {i} is not finite", v.name))),
     }
 }
 
@@ -90,12 +85,7 @@ pub fn read_exp_pca(bytes: &[u8], file: &str) -> Result<(usize, usize, Vec<f32>)
     }
     let m = body / per_vertex;
     let floats = &bytes[4 + 12 * m..];
-    let pc: Vec<f32> = floats
-        .as_chunks::<4>()
-        .0
-        .iter()
-        .map(|b| f32::from_le_bytes(*b))
-        .collect();
+    let pc: Vec<f32> = floats.as_chunks::<4>().0.iter().map(|b| f32::from_le_bytes(*b)).collect();
     if let Some(i) = pc.iter().position(|x| !x.is_finite()) {
         return Err(err(format!("mode value {i} is not finite")));
     }
@@ -103,49 +93,30 @@ pub fn read_exp_pca(bytes: &[u8], file: &str) -> Result<(usize, usize, Vec<f32>)
 }
 
 fn read_numbers(p: &Path) -> Result<Vec<f64>, ModelError> {
-    let text =
-        String::from_utf8(read(p)?).map_err(|_| ModelError::format(p.display(), "not text"))?;
+    let text = String::from_utf8(read(p)?).map_err(|_| ModelError::format(p.display(), "not text"))?;
     text.split_whitespace()
         .enumerate()
         .map(|(i, s)| {
             s.parse::<f64>()
                 .ok()
                 .filter(|x| x.is_finite())
-                .ok_or_else(|| {
-                    ModelError::format(
-                        p.display(),
-                        format!("entry {} ({s:?}) is not a number", i + 1),
-                    )
-                })
+                .ok_or_else(|| ModelError::format(p.display(), format!("entry {} ({s:?}) is not a number", i + 1)))
         })
         .collect()
 }
 
 fn srgb_to_linear(s: f64) -> f64 {
-    if s <= 0.04045 {
-        s / 12.92
-    } else {
-        ((s + 0.055) / 1.055).powf(2.4)
-    }
+    if s <= 0.04045 { s / 12.92 } else { ((s + 0.055) / 1.055).powf(2.4) }
 }
 fn srgb_to_linear_slope(s: f64) -> f64 {
-    if s <= 0.04045 {
-        1.0 / 12.92
-    } else {
-        2.4 / 1.055 * ((s + 0.055) / 1.055).powf(1.4)
-    }
+    if s <= 0.04045 { 1.0 / 12.92 } else { 2.4 / 1.055 * ((s + 0.055) / 1.055).powf(1.4) }
 }
 
 /// Imports BFM 2009 + expressions. See the module documentation for the inputs.
 pub fn import(src: &BfmSources) -> Result<MorphableModel, ModelError> {
     let mat_name = src.mat.display().to_string();
-    let vars = mat::read(
-        &read(src.mat)?,
-        &mat_name,
-        &[
-            "shapeMU", "shapePC", "shapeEV", "texMU", "texPC", "texEV", "tl",
-        ],
-    )?;
+    let vars =
+        mat::read(&read(src.mat)?, &mat_name, &["shapeMU", "shapePC", "shapeEV", "texMU", "texPC", "texEV", "tl"])?;
     let shape_mu = get(&vars, "shapeMU", &mat_name)?;
     let shape_pc = get(&vars, "shapePC", &mat_name)?;
     let shape_ev = get(&vars, "shapeEV", &mat_name)?;
@@ -162,10 +133,7 @@ pub fn import(src: &BfmSources) -> Result<MorphableModel, ModelError> {
         return Err(bad(format!("shapeMU has {n3} values (not 3 per vertex)")));
     }
     let n = n3 / 3;
-    for (v, modes, want) in [
-        (shape_pc, shape_ev, IDENTITY_MODES),
-        (tex_pc, tex_ev, ALBEDO_MODES),
-    ] {
+    for (v, modes, want) in [(shape_pc, shape_ev, IDENTITY_MODES), (tex_pc, tex_ev, ALBEDO_MODES)] {
         if v.rows() != n3 || v.cols() < want || modes.data.len() != v.cols() {
             return Err(bad(format!(
                 "`{}` is {:?} with {} σ values; expected [{n3}, ≥{want}] and one σ per column",
@@ -176,10 +144,7 @@ pub fn import(src: &BfmSources) -> Result<MorphableModel, ModelError> {
         }
     }
     if tex_mu.data.len() != n3 {
-        return Err(bad(format!(
-            "texMU has {} values, expected {n3}",
-            tex_mu.data.len()
-        )));
+        return Err(bad(format!("texMU has {} values, expected {n3}", tex_mu.data.len())));
     }
     if tl.cols() != 3 || tl.rows() == 0 {
         return Err(bad(format!("tl is {:?}, expected [T, 3]", tl.dims)));
@@ -189,10 +154,7 @@ pub fn import(src: &BfmSources) -> Result<MorphableModel, ModelError> {
     let exp_name = src.exp.display().to_string();
     let (k_exp, m, exp_pc) = read_exp_pca(&read(src.exp)?, &exp_name)?;
     if k_exp < EXPRESSION_MODES {
-        return Err(ModelError::format(
-            &exp_name,
-            format!("{k_exp} modes, need {EXPRESSION_MODES}"),
-        ));
+        return Err(ModelError::format(&exp_name, format!("{k_exp} modes, need {EXPRESSION_MODES}")));
     }
     let exp_std = read_numbers(src.exp_std)?;
     if exp_std.len() < EXPRESSION_MODES {
@@ -211,11 +173,7 @@ pub fn import(src: &BfmSources) -> Result<MorphableModel, ModelError> {
             if idx.data.len() != m {
                 return Err(ModelError::format(
                     &name,
-                    format!(
-                        "trimIndex has {} entries, {} has {m} vertices",
-                        idx.data.len(),
-                        exp_name
-                    ),
+                    format!("trimIndex has {} entries, {} has {m} vertices", idx.data.len(), exp_name),
                 ));
             }
             for (j, &v) in idx.data.iter().enumerate() {
@@ -228,10 +186,7 @@ pub fn import(src: &BfmSources) -> Result<MorphableModel, ModelError> {
                 exp_of[v as usize - 1] = j as u32;
             }
         }
-        None if m == n => exp_of
-            .iter_mut()
-            .enumerate()
-            .for_each(|(v, e)| *e = v as u32),
+        None if m == n => exp_of.iter_mut().enumerate().for_each(|(v, e)| *e = v as u32),
         None => {
             return Err(ModelError::format(
                 &exp_name,
@@ -243,14 +198,9 @@ pub fn import(src: &BfmSources) -> Result<MorphableModel, ModelError> {
     }
 
     // Crop.
-    let mean_mm: Vec<[f32; 3]> = shape_mu
-        .data
-        .chunks_exact(3)
-        .map(|c| [0, 1, 2].map(|a| (c[a] * UM_TO_MM) as f32))
-        .collect();
-    let tip = (0..n)
-        .max_by(|&a, &b| mean_mm[a][2].total_cmp(&mean_mm[b][2]))
-        .expect("n > 0");
+    let mean_mm: Vec<[f32; 3]> =
+        shape_mu.data.chunks_exact(3).map(|c| [0, 1, 2].map(|a| (c[a] * UM_TO_MM) as f32)).collect();
+    let tip = (0..n).max_by(|&a, &b| mean_mm[a][2].total_cmp(&mean_mm[b][2])).expect("n > 0");
     let t = mean_mm[tip];
     let keep: Vec<usize> = (0..n)
         .filter(|&v| {
@@ -300,11 +250,7 @@ pub fn import(src: &BfmSources) -> Result<MorphableModel, ModelError> {
         }
     }
 
-    let scaled = |pc: &MatArray,
-                  ev: &MatArray,
-                  k: usize,
-                  unit: f64,
-                  col: &dyn Fn(usize, usize, f64) -> f64| {
+    let scaled = |pc: &MatArray, ev: &MatArray, k: usize, unit: f64, col: &dyn Fn(usize, usize, f64) -> f64| {
         let mut out = Vec::with_capacity(k * nk * 3);
         for mode in 0..k {
             let s = ev.data[mode] * unit;
@@ -321,10 +267,8 @@ pub fn import(src: &BfmSources) -> Result<MorphableModel, ModelError> {
     let albedo_basis = scaled(tex_pc, tex_ev, ALBEDO_MODES, 1.0 / 255.0, &|v, c, x| {
         x * srgb_to_linear_slope(tex01(v, c).clamp(0.0, 1.0))
     });
-    let mean_albedo: Vec<f32> = keep
-        .iter()
-        .flat_map(|&v| [0, 1, 2].map(|c| srgb_to_linear(tex01(v, c).clamp(0.0, 1.0)) as f32))
-        .collect();
+    let mean_albedo: Vec<f32> =
+        keep.iter().flat_map(|&v| [0, 1, 2].map(|c| srgb_to_linear(tex01(v, c).clamp(0.0, 1.0)) as f32)).collect();
     let mut expression_basis = Vec::with_capacity(EXPRESSION_MODES * nk * 3);
     for mode in 0..EXPRESSION_MODES {
         let s = exp_std[mode] * UM_TO_MM;
@@ -342,18 +286,12 @@ pub fn import(src: &BfmSources) -> Result<MorphableModel, ModelError> {
         Some(p) => {
             let vals = read_numbers(p)?;
             if vals.len() != 68 {
-                return Err(ModelError::format(
-                    p.display(),
-                    format!("{} indices, expected 68", vals.len()),
-                ));
+                return Err(ModelError::format(p.display(), format!("{} indices, expected 68", vals.len())));
             }
             vals.iter()
                 .enumerate()
                 .map(|(i, &x)| {
-                    let ok = x.fract() == 0.0
-                        && x >= 0.0
-                        && (x as usize) < n
-                        && new_id[x as usize] != u32::MAX;
+                    let ok = x.fract() == 0.0 && x >= 0.0 && (x as usize) < n && new_id[x as usize] != u32::MAX;
                     if ok {
                         Ok(new_id[x as usize])
                     } else {
@@ -366,20 +304,11 @@ pub fn import(src: &BfmSources) -> Result<MorphableModel, ModelError> {
                 .collect::<Result<Vec<_>, _>>()?
         }
     };
-    let (lo, hi) = p3.iter().fold(
-        ([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]),
-        |(lo, hi), q| {
-            (
-                [lo[0].min(q[0]), lo[1].min(q[1])],
-                [hi[0].max(q[0]), hi[1].max(q[1])],
-            )
-        },
-    );
+    let (lo, hi) = p3.iter().fold(([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]), |(lo, hi), q| {
+        ([lo[0].min(q[0]), lo[1].min(q[1])], [hi[0].max(q[0]), hi[1].max(q[1])])
+    });
     let side = (hi[0] - lo[0]).max(hi[1] - lo[1]).max(1e-6);
-    let uvs: Vec<[f32; 2]> = p3
-        .iter()
-        .map(|q| [(q[0] - lo[0]) / side, (q[1] - lo[1]) / side])
-        .collect();
+    let uvs: Vec<[f32; 2]> = p3.iter().map(|q| [(q[0] - lo[0]) / side, (q[1] - lo[1]) / side]).collect();
     let group = vec![0u8; nk];
     let mirror = symmetry::mirror_map(p3, &group, |g| g);
     let tip_new = new_id[tip];
@@ -389,30 +318,15 @@ pub fn import(src: &BfmSources) -> Result<MorphableModel, ModelError> {
         name: "Basel Face Model 2009 + Guo et al. expressions (front face)".into(),
         source: format!(
             "{} + {} (front-face crop r={CROP_RADIUS_MM} mm, depth {CROP_DEPTH_MM} mm around the nose tip)",
-            src.mat
-                .file_name()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default(),
-            src.exp
-                .file_name()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default()
+            src.mat.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default(),
+            src.exp.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default()
         ),
         licence: "Basel Face Model licence (University of Basel): not redistributable".into(),
         units: "mm".into(),
         format_version: FORMAT_VERSION,
-        identity: Block {
-            count: IDENTITY_MODES,
-            prior: Prior::Gaussian,
-        },
-        expression: Block {
-            count: EXPRESSION_MODES,
-            prior: Prior::Gaussian,
-        },
-        albedo: Block {
-            count: ALBEDO_MODES,
-            prior: Prior::Gaussian,
-        },
+        identity: Block { count: IDENTITY_MODES, prior: Prior::Gaussian },
+        expression: Block { count: EXPRESSION_MODES, prior: Prior::Gaussian },
+        albedo: Block { count: ALBEDO_MODES, prior: Prior::Gaussian },
         expression_names: Vec::new(),
         region_names: vec!["face".into()],
         vertex_count: nk,

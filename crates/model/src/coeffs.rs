@@ -45,10 +45,6 @@ impl Coefficients {
     }
 
     pub fn layout(&self) -> CoeffLayout {
-        CoeffLayout {
-            identity: self.identity.len(),
-            expression: self.expression.len(),
-            albedo: self.albedo.len(),
-        }
+        CoeffLayout { identity: self.identity.len(), expression: self.expression.len(), albedo: self.albedo.len() }
     }
 }

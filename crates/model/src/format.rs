@@ -33,12 +33,7 @@ pub struct Limits {
     pub max_uvs: usize,
 }
 
-pub const LIMITS: Limits = Limits {
-    max_vertices: 1 << 22,
-    max_triangles: 1 << 23,
-    max_modes: 4096,
-    max_uvs: 1 << 23,
-};
+pub const LIMITS: Limits = Limits { max_vertices: 1 << 22, max_triangles: 1 << 23, max_modes: 4096, max_uvs: 1 << 23 };
 
 /// Number of landmarks a model carries (iBUG 300-W 68-point markup), or none at all.
 pub const LANDMARK_COUNT: usize = 68;
@@ -100,25 +95,13 @@ impl View for &Owned {
 }
 
 fn f32_tensor(v: &[f32], shape: Vec<usize>) -> Owned {
-    Owned {
-        dtype: Dtype::F32,
-        shape,
-        data: v.iter().flat_map(|x| x.to_le_bytes()).collect(),
-    }
+    Owned { dtype: Dtype::F32, shape, data: v.iter().flat_map(|x| x.to_le_bytes()).collect() }
 }
 fn u32_tensor(v: &[u32], shape: Vec<usize>) -> Owned {
-    Owned {
-        dtype: Dtype::U32,
-        shape,
-        data: v.iter().flat_map(|x| x.to_le_bytes()).collect(),
-    }
+    Owned { dtype: Dtype::U32, shape, data: v.iter().flat_map(|x| x.to_le_bytes()).collect() }
 }
 fn u8_tensor(v: &[u8]) -> Owned {
-    Owned {
-        dtype: Dtype::U8,
-        shape: vec![v.len()],
-        data: v.to_vec(),
-    }
+    Owned { dtype: Dtype::U8, shape: vec![v.len()], data: v.to_vec() }
 }
 
 pub(crate) fn encode(meta: &ModelMeta, p: &ModelParts) -> Result<Vec<u8>, ModelError> {
@@ -128,35 +111,14 @@ pub(crate) fn encode(meta: &ModelMeta, p: &ModelParts) -> Result<Vec<u8>, ModelE
     let t = p.triangles.len();
     let mut tensors: Vec<(String, Owned)> = vec![
         ("mean_shape".into(), f32_tensor(&p.mean_shape, vec![n, 3])),
-        (
-            "identity_basis".into(),
-            f32_tensor(&p.identity_basis, vec![meta.identity.count, n, 3]),
-        ),
-        (
-            "expression_basis".into(),
-            f32_tensor(&p.expression_basis, vec![meta.expression.count, n, 3]),
-        ),
+        ("identity_basis".into(), f32_tensor(&p.identity_basis, vec![meta.identity.count, n, 3])),
+        ("expression_basis".into(), f32_tensor(&p.expression_basis, vec![meta.expression.count, n, 3])),
         ("mean_albedo".into(), f32_tensor(&p.mean_albedo, vec![n, 3])),
-        (
-            "albedo_basis".into(),
-            f32_tensor(&p.albedo_basis, vec![meta.albedo.count, nf, 3]),
-        ),
-        (
-            "triangles".into(),
-            u32_tensor(p.triangles.as_flattened(), vec![t, 3]),
-        ),
-        (
-            "uvs".into(),
-            f32_tensor(p.uvs.as_flattened(), vec![p.uvs.len(), 2]),
-        ),
-        (
-            "uv_triangles".into(),
-            u32_tensor(p.uv_triangles.as_flattened(), vec![t, 3]),
-        ),
-        (
-            "landmarks".into(),
-            u32_tensor(&p.landmarks, vec![p.landmarks.len()]),
-        ),
+        ("albedo_basis".into(), f32_tensor(&p.albedo_basis, vec![meta.albedo.count, nf, 3])),
+        ("triangles".into(), u32_tensor(p.triangles.as_flattened(), vec![t, 3])),
+        ("uvs".into(), f32_tensor(p.uvs.as_flattened(), vec![p.uvs.len(), 2])),
+        ("uv_triangles".into(), u32_tensor(p.uv_triangles.as_flattened(), vec![t, 3])),
+        ("landmarks".into(), u32_tensor(&p.landmarks, vec![p.landmarks.len()])),
         ("symmetry".into(), u32_tensor(&p.symmetry, vec![n])),
         ("region_ids".into(), u8_tensor(&p.region_ids)),
     ];
@@ -172,22 +134,12 @@ pub(crate) fn encode(meta: &ModelMeta, p: &ModelParts) -> Result<Vec<u8>, ModelE
     put("licence", meta.licence.clone());
     put("units", meta.units.clone());
     put("format_version", meta.format_version.to_string());
-    for (key, b) in [
-        ("identity", meta.identity),
-        ("expression", meta.expression),
-        ("albedo", meta.albedo),
-    ] {
+    for (key, b) in [("identity", meta.identity), ("expression", meta.expression), ("albedo", meta.albedo)] {
         put(&format!("{key}_count"), b.count.to_string());
         put(&format!("{key}_prior"), b.prior.as_str().to_string());
     }
-    put(
-        "expression_names",
-        serde_json::to_string(&meta.expression_names).expect("strings serialise"),
-    );
-    put(
-        "region_names",
-        serde_json::to_string(&meta.region_names).expect("strings serialise"),
-    );
+    put("expression_names", serde_json::to_string(&meta.expression_names).expect("strings serialise"));
+    put("region_names", serde_json::to_string(&meta.region_names).expect("strings serialise"));
     put("vertex_count", n.to_string());
     put("triangle_count", t.to_string());
     put("face_vertex_count", nf.to_string());
@@ -197,19 +149,12 @@ pub(crate) fn encode(meta: &ModelMeta, p: &ModelParts) -> Result<Vec<u8>, ModelE
 }
 
 fn header_meta(md: &HashMap<String, String>) -> Result<ModelMeta, ModelError> {
-    let get = |k: &str| {
-        md.get(k)
-            .ok_or_else(|| ModelError::Header(format!("missing field `{k}`")))
-    };
+    let get = |k: &str| md.get(k).ok_or_else(|| ModelError::Header(format!("missing field `{k}`")));
     let count = |k: &str, max: usize| -> Result<usize, ModelError> {
         let s = get(k)?;
-        let v: usize = s
-            .parse()
-            .map_err(|_| ModelError::Header(format!("`{k}` = {s:?} is not a count")))?;
+        let v: usize = s.parse().map_err(|_| ModelError::Header(format!("`{k}` = {s:?} is not a count")))?;
         if v > max {
-            return Err(ModelError::Header(format!(
-                "`{k}` = {v} is absurd (limit {max})"
-            )));
+            return Err(ModelError::Header(format!("`{k}` = {v} is absurd (limit {max})")));
         }
         Ok(v)
     };
@@ -217,9 +162,7 @@ fn header_meta(md: &HashMap<String, String>) -> Result<ModelMeta, ModelError> {
         let count = count(&format!("{key}_count"), LIMITS.max_modes)?;
         let p = get(&format!("{key}_prior"))?;
         let prior = Prior::parse(p).ok_or_else(|| {
-            ModelError::Header(format!(
-                "`{key}_prior` = {p:?}: expected \"gaussian\" or \"blendshape\""
-            ))
+            ModelError::Header(format!("`{key}_prior` = {p:?}: expected \"gaussian\" or \"blendshape\""))
         })?;
         Ok(Block { count, prior })
     };
@@ -227,9 +170,8 @@ fn header_meta(md: &HashMap<String, String>) -> Result<ModelMeta, ModelError> {
         serde_json::from_str(get(k)?)
             .map_err(|e| ModelError::Header(format!("`{k}` is not a JSON array of strings: {e}")))
     };
-    let format_version: u32 = get("format_version")?
-        .parse()
-        .map_err(|_| ModelError::Header("`format_version` is not a number".into()))?;
+    let format_version: u32 =
+        get("format_version")?.parse().map_err(|_| ModelError::Header("`format_version` is not a number".into()))?;
     if format_version != FORMAT_VERSION {
         return Err(ModelError::Header(format!(
             "format version {format_version} is not supported (this build reads {FORMAT_VERSION})"
@@ -259,41 +201,22 @@ struct Reader<'a> {
 
 impl<'a> Reader<'a> {
     fn raw(&self, name: &str, dtype: Dtype, shape: &[usize]) -> Result<&'a [u8], ModelError> {
-        let view = self
-            .st
-            .tensor(name)
-            .map_err(|_| ModelError::tensor(name, "missing"))?;
+        let view = self.st.tensor(name).map_err(|_| ModelError::tensor(name, "missing"))?;
         if view.dtype() != dtype {
-            return Err(ModelError::tensor(
-                name,
-                format!("dtype {:?}, expected {dtype:?}", view.dtype()),
-            ));
+            return Err(ModelError::tensor(name, format!("dtype {:?}, expected {dtype:?}", view.dtype())));
         }
         if view.shape() != shape {
-            return Err(ModelError::tensor(
-                name,
-                format!("shape {:?}, expected {shape:?}", view.shape()),
-            ));
+            return Err(ModelError::tensor(name, format!("shape {:?}, expected {shape:?}", view.shape())));
         }
         Ok(view.data())
     }
     fn f32s(&self, name: &str, shape: &[usize]) -> Result<Vec<f32>, ModelError> {
         let data = self.raw(name, Dtype::F32, shape)?;
-        Ok(data
-            .as_chunks::<4>()
-            .0
-            .iter()
-            .map(|b| f32::from_le_bytes(*b))
-            .collect())
+        Ok(data.as_chunks::<4>().0.iter().map(|b| f32::from_le_bytes(*b)).collect())
     }
     fn u32s(&self, name: &str, shape: &[usize]) -> Result<Vec<u32>, ModelError> {
         let data = self.raw(name, Dtype::U32, shape)?;
-        Ok(data
-            .as_chunks::<4>()
-            .0
-            .iter()
-            .map(|b| u32::from_le_bytes(*b))
-            .collect())
+        Ok(data.as_chunks::<4>().0.iter().map(|b| u32::from_le_bytes(*b)).collect())
     }
     fn u8s(&self, name: &str, len: usize) -> Result<Vec<u8>, ModelError> {
         Ok(self.raw(name, Dtype::U8, &[len])?.to_vec())
@@ -301,14 +224,8 @@ impl<'a> Reader<'a> {
     /// Length of the first dimension of a tensor, bounded (for tensors whose length the
     /// header does not state).
     fn len0(&self, name: &str, max: usize) -> Result<usize, ModelError> {
-        let view = self
-            .st
-            .tensor(name)
-            .map_err(|_| ModelError::tensor(name, "missing"))?;
-        let n = *view
-            .shape()
-            .first()
-            .ok_or_else(|| ModelError::tensor(name, "has no dimensions"))?;
+        let view = self.st.tensor(name).map_err(|_| ModelError::tensor(name, "missing"))?;
+        let n = *view.shape().first().ok_or_else(|| ModelError::tensor(name, "has no dimensions"))?;
         if n > max {
             return Err(ModelError::tensor(name, format!("{n} rows is absurd")));
         }
@@ -322,12 +239,8 @@ fn tri(v: Vec<u32>) -> Vec<[u32; 3]> {
 
 pub(crate) fn decode(bytes: &[u8]) -> Result<MorphableModel, ModelError> {
     let st = SafeTensors::deserialize(bytes).map_err(|e| ModelError::Container(e.to_string()))?;
-    let (_, header) =
-        SafeTensors::read_metadata(bytes).map_err(|e| ModelError::Container(e.to_string()))?;
-    let md = header
-        .metadata()
-        .as_ref()
-        .ok_or_else(|| ModelError::Header("no `__metadata__` section".into()))?;
+    let (_, header) = SafeTensors::read_metadata(bytes).map_err(|e| ModelError::Container(e.to_string()))?;
+    let md = header.metadata().as_ref().ok_or_else(|| ModelError::Header("no `__metadata__` section".into()))?;
     let meta = header_meta(md)?;
     validate_meta(&meta)?;
     let r = Reader { st };
@@ -360,29 +273,20 @@ pub(crate) fn decode(bytes: &[u8]) -> Result<MorphableModel, ModelError> {
 fn finite(name: &str, v: &[f32]) -> Result<(), ModelError> {
     match v.iter().position(|x| !x.is_finite()) {
         None => Ok(()),
-        Some(i) => Err(ModelError::tensor(
-            name,
-            format!("element {i} is {} (must be finite)", v[i]),
-        )),
+        Some(i) => Err(ModelError::tensor(name, format!("element {i} is {} (must be finite)", v[i]))),
     }
 }
 
 fn indices(name: &str, v: &[u32], bound: usize) -> Result<(), ModelError> {
     match v.iter().position(|&x| x as usize >= bound) {
         None => Ok(()),
-        Some(i) => Err(ModelError::tensor(
-            name,
-            format!("index {} at element {i} is out of range (< {bound})", v[i]),
-        )),
+        Some(i) => Err(ModelError::tensor(name, format!("index {} at element {i} is out of range (< {bound})", v[i]))),
     }
 }
 
 fn len(name: &str, got: usize, expected: usize) -> Result<(), ModelError> {
     if got != expected {
-        return Err(ModelError::tensor(
-            name,
-            format!("{got} values, expected {expected}"),
-        ));
+        return Err(ModelError::tensor(name, format!("{got} values, expected {expected}")));
     }
     Ok(())
 }
@@ -397,36 +301,20 @@ pub(crate) fn validate_meta(meta: &ModelMeta) -> Result<(), ModelError> {
         return inv(format!("units {:?}, expected \"mm\"", meta.units));
     }
     if n == 0 || n > LIMITS.max_vertices {
-        return inv(format!(
-            "vertex count {n} (must be 1..={})",
-            LIMITS.max_vertices
-        ));
+        return inv(format!("vertex count {n} (must be 1..={})", LIMITS.max_vertices));
     }
     if t == 0 || t > LIMITS.max_triangles {
-        return inv(format!(
-            "triangle count {t} (must be 1..={})",
-            LIMITS.max_triangles
-        ));
+        return inv(format!("triangle count {t} (must be 1..={})", LIMITS.max_triangles));
     }
     if nf == 0 || nf > n {
         return inv(format!("face vertex count {nf} not in 1..={n}"));
     }
     if meta.face_triangle_count == 0 || meta.face_triangle_count > t {
-        return inv(format!(
-            "face triangle count {} not in 1..={t}",
-            meta.face_triangle_count
-        ));
+        return inv(format!("face triangle count {} not in 1..={t}", meta.face_triangle_count));
     }
-    for (name, b) in [
-        ("identity", meta.identity),
-        ("expression", meta.expression),
-        ("albedo", meta.albedo),
-    ] {
+    for (name, b) in [("identity", meta.identity), ("expression", meta.expression), ("albedo", meta.albedo)] {
         if b.count > LIMITS.max_modes {
-            return inv(format!(
-                "{name} has {} modes (limit {})",
-                b.count, LIMITS.max_modes
-            ));
+            return inv(format!("{name} has {} modes (limit {})", b.count, LIMITS.max_modes));
         }
     }
     if !meta.expression_names.is_empty() && meta.expression_names.len() != meta.expression.count {
@@ -437,10 +325,7 @@ pub(crate) fn validate_meta(meta: &ModelMeta) -> Result<(), ModelError> {
         ));
     }
     if meta.region_names.is_empty() || meta.region_names.len() > 256 {
-        return inv(format!(
-            "{} region names (must be 1..=256)",
-            meta.region_names.len()
-        ));
+        return inv(format!("{} region names (must be 1..=256)", meta.region_names.len()));
     }
     Ok(())
 }
@@ -452,22 +337,10 @@ pub(crate) fn validate(meta: &ModelMeta, p: &ModelParts) -> Result<(), ModelErro
     let nf = meta.face_vertex_count;
     let t = meta.triangle_count;
     len("mean_shape", p.mean_shape.len(), n * 3)?;
-    len(
-        "identity_basis",
-        p.identity_basis.len(),
-        meta.identity.count * n * 3,
-    )?;
-    len(
-        "expression_basis",
-        p.expression_basis.len(),
-        meta.expression.count * n * 3,
-    )?;
+    len("identity_basis", p.identity_basis.len(), meta.identity.count * n * 3)?;
+    len("expression_basis", p.expression_basis.len(), meta.expression.count * n * 3)?;
     len("mean_albedo", p.mean_albedo.len(), n * 3)?;
-    len(
-        "albedo_basis",
-        p.albedo_basis.len(),
-        meta.albedo.count * nf * 3,
-    )?;
+    len("albedo_basis", p.albedo_basis.len(), meta.albedo.count * nf * 3)?;
     len("triangles", p.triangles.len(), t)?;
     len("uv_triangles", p.uv_triangles.len(), t)?;
     if !p.landmarks.is_empty() {
@@ -493,37 +366,18 @@ pub(crate) fn validate(meta: &ModelMeta, p: &ModelParts) -> Result<(), ModelErro
     finite("uvs", p.uvs.as_flattened())?;
     indices("triangles", p.triangles.as_flattened(), n)?;
     // The face-prefix convention: face triangles only use face vertices.
-    indices(
-        "triangles (face area)",
-        p.triangles[..meta.face_triangle_count].as_flattened(),
-        nf,
-    )?;
+    indices("triangles (face area)", p.triangles[..meta.face_triangle_count].as_flattened(), nf)?;
     indices("uv_triangles", p.uv_triangles.as_flattened(), p.uvs.len())?;
     indices("landmarks", &p.landmarks, nf)?;
     indices("symmetry", &p.symmetry, n)?;
-    if let Some(i) = p
-        .region_ids
-        .iter()
-        .position(|&r| r as usize >= meta.region_names.len())
-    {
+    if let Some(i) = p.region_ids.iter().position(|&r| r as usize >= meta.region_names.len()) {
         return Err(ModelError::tensor(
             "region_ids",
-            format!(
-                "region {} at vertex {i} has no name ({} regions)",
-                p.region_ids[i],
-                meta.region_names.len()
-            ),
+            format!("region {} at vertex {i} has no name ({} regions)", p.region_ids[i], meta.region_names.len()),
         ));
     }
-    if let Some(i) = p
-        .triangles
-        .iter()
-        .position(|t| t[0] == t[1] || t[1] == t[2] || t[0] == t[2])
-    {
-        return Err(ModelError::tensor(
-            "triangles",
-            format!("triangle {i} is degenerate (repeated vertex)"),
-        ));
+    if let Some(i) = p.triangles.iter().position(|t| t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) {
+        return Err(ModelError::tensor("triangles", format!("triangle {i} is degenerate (repeated vertex)")));
     }
     Ok(())
 }
@@ -539,8 +393,7 @@ pub struct TensorSummary {
 
 /// Lists the tensors of a safetensors container in file order (for `facerecon model info`).
 pub fn tensor_summary(bytes: &[u8]) -> Result<Vec<TensorSummary>, ModelError> {
-    let (_, header) =
-        SafeTensors::read_metadata(bytes).map_err(|e| ModelError::Container(e.to_string()))?;
+    let (_, header) = SafeTensors::read_metadata(bytes).map_err(|e| ModelError::Container(e.to_string()))?;
     let infos = header.tensors();
     let mut out: Vec<(usize, TensorSummary)> = infos
         .into_iter()

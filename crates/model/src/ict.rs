@@ -19,9 +19,7 @@ use std::sync::{Arc, Mutex};
 
 use crate::albedo;
 use crate::error::ModelError;
-use crate::morphable::{
-    Block, FORMAT_VERSION, ModelMeta, ModelParts, MorphableModel, Prior, as_vec3,
-};
+use crate::morphable::{Block, FORMAT_VERSION, ModelMeta, ModelParts, MorphableModel, Prior, as_vec3};
 use crate::{npy, obj, regions, symmetry};
 
 /// Bumped whenever the importer's output changes (part of the cache key).
@@ -54,19 +52,17 @@ pub const REGION_NAMES: [&str; 11] = [
 
 /// Upstream vertex ranges (inclusive start, exclusive end) of each kept region, and the
 /// polygon range end of the kept mesh. From upstream's README.
-const REGION_VERTEX_STARTS: [usize; 11] = [
-    0, 9_409, 11_248, 13_294, 13_678, 14_062, 17_039, 21_451, 22_221, 23_021, 23_791,
-];
+const REGION_VERTEX_STARTS: [usize; 11] =
+    [0, 9_409, 11_248, 13_294, 13_678, 14_062, 17_039, 21_451, 22_221, 23_021, 23_791];
 const KEPT_VERTICES: usize = 24_591;
 const KEPT_POLYGONS: usize = 24_692;
 
 /// The 68 landmark vertex indices listed in upstream's README (Multi-PIE order).
 pub const README_LANDMARKS: [u32; 68] = [
-    1225, 1888, 1052, 367, 1719, 1722, 2199, 1447, 966, 3661, 4390, 3927, 3924, 2608, 3272, 4088,
-    3443, 268, 493, 1914, 2044, 1401, 3615, 4240, 4114, 2734, 2509, 978, 4527, 4942, 4857, 1140,
-    2075, 1147, 4269, 3360, 1507, 1542, 1537, 1528, 1518, 1511, 3742, 3751, 3756, 3721, 3725, 3732,
-    5708, 5695, 2081, 0, 4275, 6200, 6213, 6346, 6461, 5518, 5957, 5841, 5702, 5711, 5533, 6216,
-    6207, 6470, 5517, 5966,
+    1225, 1888, 1052, 367, 1719, 1722, 2199, 1447, 966, 3661, 4390, 3927, 3924, 2608, 3272, 4088, 3443, 268, 493, 1914,
+    2044, 1401, 3615, 4240, 4114, 2734, 2509, 978, 4527, 4942, 4857, 1140, 2075, 1147, 4269, 3360, 1507, 1542, 1537,
+    1528, 1518, 1511, 3742, 3751, 3756, 3721, 3725, 3732, 5708, 5695, 2081, 0, 4275, 6200, 6213, 6346, 6461, 5518,
+    5957, 5841, 5702, 5711, 5533, 6216, 6207, 6470, 5517, 5966,
 ];
 
 const CM_TO_MM: f32 = 10.0;
@@ -111,8 +107,7 @@ fn read(dir: &Path, rel: &str) -> Result<Vec<u8>, ModelError> {
 }
 
 fn json(dir: &Path, rel: &str) -> Result<serde_json::Value, ModelError> {
-    serde_json::from_slice(&read(dir, rel)?)
-        .map_err(|e| ModelError::format(rel, format!("invalid JSON: {e}")))
+    serde_json::from_slice(&read(dir, rel)?).map_err(|e| ModelError::format(rel, format!("invalid JSON: {e}")))
 }
 
 fn strings(v: &serde_json::Value, key: &str, file: &str) -> Result<Vec<String>, ModelError> {
@@ -131,8 +126,7 @@ pub fn import(source_dir: &Path) -> Result<MorphableModel, ModelError> {
 pub fn import_with_report(source_dir: &Path) -> Result<(MorphableModel, ImportReport), ModelError> {
     let dir = source_dir;
     let obj_name = INPUT_FILES[0];
-    let text = String::from_utf8(read(dir, obj_name)?)
-        .map_err(|_| ModelError::format(obj_name, "not UTF-8 text"))?;
+    let text = String::from_utf8(read(dir, obj_name)?).map_err(|_| ModelError::format(obj_name, "not UTF-8 text"))?;
     let mesh = obj::parse(&text, obj_name)?;
     if mesh.positions.len() != UPSTREAM_VERTICES || mesh.polygons.len() != UPSTREAM_POLYGONS {
         return Err(ModelError::format(
@@ -161,10 +155,7 @@ pub fn import_with_report(source_dir: &Path) -> Result<(MorphableModel, ImportRe
             ));
         }
         if poly.uvs.is_empty() {
-            return Err(ModelError::format(
-                obj_name,
-                format!("polygon {pi} has no UVs"),
-            ));
+            return Err(ModelError::format(obj_name, format!("polygon {pi} has no UVs")));
         }
         for k in 1..poly.vertices.len() - 1 {
             triangles.push([poly.vertices[0], poly.vertices[k], poly.vertices[k + 1]]);
@@ -188,10 +179,7 @@ pub fn import_with_report(source_dir: &Path) -> Result<(MorphableModel, ImportRe
         })
         .collect();
 
-    let neutral: Vec<f32> = mesh.positions[..n]
-        .iter()
-        .flat_map(|p| p.map(|x| x * CM_TO_MM))
-        .collect();
+    let neutral: Vec<f32> = mesh.positions[..n].iter().flat_map(|p| p.map(|x| x * CM_TO_MM)).collect();
 
     // Shape arrays.
     let indices = json(dir, INPUT_FILES[3])?;
@@ -199,10 +187,7 @@ pub fn import_with_report(source_dir: &Path) -> Result<(MorphableModel, ImportRe
     let shape_names = json(dir, INPUT_FILES[4])?;
     let listed = strings(&shape_names, "expression_shapes", INPUT_FILES[4])?;
     if listed != expression_names {
-        return Err(ModelError::format(
-            INPUT_FILES[4],
-            "expression order differs from vertex_indices.json",
-        ));
+        return Err(ModelError::format(INPUT_FILES[4], "expression order differs from vertex_indices.json"));
     }
     let identity_basis = deltas(dir, INPUT_FILES[1], &mesh.positions, 100)?;
     let expression_basis = deltas(dir, INPUT_FILES[2], &mesh.positions, expression_names.len())?;
@@ -212,17 +197,9 @@ pub fn import_with_report(source_dir: &Path) -> Result<(MorphableModel, ImportRe
         .get("idx_to_landmark_verts")
         .and_then(|a| a.as_array())
         .and_then(|a| a.iter().map(|x| x.as_u64().map(|x| x as u32)).collect())
-        .ok_or_else(|| {
-            ModelError::format(
-                INPUT_FILES[3],
-                "`idx_to_landmark_verts` is not a list of indices",
-            )
-        })?;
+        .ok_or_else(|| ModelError::format(INPUT_FILES[3], "`idx_to_landmark_verts` is not a list of indices"))?;
     if lm != README_LANDMARKS {
-        return Err(ModelError::format(
-            INPUT_FILES[3],
-            "landmark indices differ from upstream's README",
-        ));
+        return Err(ModelError::format(INPUT_FILES[3], "landmark indices differ from upstream's README"));
     }
 
     // Regions.
@@ -298,20 +275,12 @@ pub fn import_with_report(source_dir: &Path) -> Result<(MorphableModel, ImportRe
 }
 
 /// `(shape_k − neutral)` for the kept vertices, in mm, mode-major.
-fn deltas(
-    dir: &Path,
-    rel: &str,
-    neutral_cm: &[[f32; 3]],
-    expect: usize,
-) -> Result<Vec<f32>, ModelError> {
+fn deltas(dir: &Path, rel: &str, neutral_cm: &[[f32; 3]], expect: usize) -> Result<Vec<f32>, ModelError> {
     let a = npy::parse(&read(dir, rel)?, rel)?;
     if a.shape != [expect, UPSTREAM_VERTICES, 3] {
         return Err(ModelError::format(
             rel,
-            format!(
-                "shape {:?}, expected [{expect}, {UPSTREAM_VERTICES}, 3]",
-                a.shape
-            ),
+            format!("shape {:?}, expected [{expect}, {UPSTREAM_VERTICES}, 3]", a.shape),
         ));
     }
     if let Some(i) = a.data.iter().position(|x| !x.is_finite()) {
@@ -341,10 +310,7 @@ pub fn load_default() -> Result<Arc<MorphableModel>, ModelError> {
         return Ok(m.clone());
     }
     let source = default_source_dir();
-    let path = cache_dir().join(format!(
-        "ict-face-light-{:016x}.safetensors",
-        input_key(&source)?
-    ));
+    let path = cache_dir().join(format!("ict-face-light-{:016x}.safetensors", input_key(&source)?));
     let model = match MorphableModel::load(&path) {
         Ok(m) => m,
         Err(_) => {
@@ -369,9 +335,7 @@ pub fn cache_dir() -> PathBuf {
         return PathBuf::from(p).join("facerecon-model-cache");
     }
     if let Ok(exe) = std::env::current_exe()
-        && let Some(t) = exe
-            .ancestors()
-            .find(|a| a.file_name().is_some_and(|n| n == "target"))
+        && let Some(t) = exe.ancestors().find(|a| a.file_name().is_some_and(|n| n == "target"))
     {
         return t.join("facerecon-model-cache");
     }

@@ -53,16 +53,12 @@ pub fn read(bytes: &[u8], file: &str, wanted: &[&str]) -> Result<Vec<MatArray>, 
         b"IM" => {}
         b"MI" => return Err(err("big-endian MAT files are not supported".into())),
         _ => {
-            return Err(err(
-                "not a MATLAB level-5 MAT-file (no endian indicator)".into()
-            ));
+            return Err(err("not a MATLAB level-5 MAT-file (no endian indicator)".into()));
         }
     }
     let version = u16::from_le_bytes([bytes[124], bytes[125]]);
     if version != 0x0100 {
-        return Err(err(format!(
-            "MAT-file version {version:#x} (only level 5, 0x0100)"
-        )));
+        return Err(err(format!("MAT-file version {version:#x} (only level 5, 0x0100)")));
     }
     let mut out = Vec::new();
     let mut pos = 128;
@@ -71,17 +67,11 @@ pub fn read(bytes: &[u8], file: &str, wanted: &[&str]) -> Result<Vec<MatArray>, 
         let end = data_at
             .checked_add(n)
             .filter(|&e| e <= bytes.len())
-            .ok_or_else(|| {
-                err(format!(
-                    "element at byte {pos} claims {n} bytes, past the end of the file"
-                ))
-            })?;
+            .ok_or_else(|| err(format!("element at byte {pos} claims {n} bytes, past the end of the file")))?;
         let body = &bytes[data_at..end];
         match ty {
             MI_MATRIX => {
-                if let Some(a) =
-                    matrix(body, wanted).map_err(|e| err(format!("variable at byte {pos}: {e}")))?
-                {
+                if let Some(a) = matrix(body, wanted).map_err(|e| err(format!("variable at byte {pos}: {e}")))? {
                     out.push(a);
                 }
             }
@@ -93,12 +83,10 @@ pub fn read(bytes: &[u8], file: &str, wanted: &[&str]) -> Result<Vec<MatArray>, 
                     .read_to_end(&mut inflated)
                     .map_err(|e| err(format!("compressed element at byte {pos}: {e}")))?;
                 if inflated.len() > cap {
-                    return Err(err(format!(
-                        "compressed element at byte {pos} inflates beyond {cap} bytes"
-                    )));
+                    return Err(err(format!("compressed element at byte {pos} inflates beyond {cap} bytes")));
                 }
-                let (ity, inn, iat) = tag(&inflated, 0)
-                    .map_err(|e| err(format!("compressed element at byte {pos}: {e}")))?;
+                let (ity, inn, iat) =
+                    tag(&inflated, 0).map_err(|e| err(format!("compressed element at byte {pos}: {e}")))?;
                 if ity != MI_MATRIX {
                     return Err(err(format!(
                         "compressed element at byte {pos} holds data type {ity}, expected a matrix"
@@ -108,8 +96,8 @@ pub fn read(bytes: &[u8], file: &str, wanted: &[&str]) -> Result<Vec<MatArray>, 
                     .checked_add(inn)
                     .filter(|&e| e <= inflated.len())
                     .ok_or_else(|| err(format!("compressed matrix at byte {pos} is truncated")))?;
-                if let Some(a) = matrix(&inflated[iat..iend], wanted)
-                    .map_err(|e| err(format!("variable at byte {pos}: {e}")))?
+                if let Some(a) =
+                    matrix(&inflated[iat..iend], wanted).map_err(|e| err(format!("variable at byte {pos}: {e}")))?
                 {
                     out.push(a);
                 }
@@ -158,11 +146,7 @@ impl<'a> Sub<'a> {
             .filter(|&e| e <= self.b.len())
             .ok_or_else(|| format!("{what}: {n} bytes claimed, the matrix holds fewer"))?;
         let small = at == self.pos + 4;
-        self.pos = if small {
-            self.pos + 8
-        } else {
-            end.div_ceil(8) * 8
-        };
+        self.pos = if small { self.pos + 8 } else { end.div_ceil(8) * 8 };
         Ok((ty, &self.b[at..end]))
     }
 }
@@ -180,9 +164,7 @@ fn element_size(ty: u32) -> Option<usize> {
 fn numbers(ty: u32, d: &[u8]) -> Vec<f64> {
     macro_rules! conv {
         ($t:ty, $k:expr) => {
-            d.chunks_exact($k)
-                .map(|c| <$t>::from_le_bytes(c.try_into().expect("chunk size")) as f64)
-                .collect()
+            d.chunks_exact($k).map(|c| <$t>::from_le_bytes(c.try_into().expect("chunk size")) as f64).collect()
         };
     }
     match ty {
@@ -243,21 +225,9 @@ fn matrix(body: &[u8], wanted: &[&str]) -> Result<Option<MatArray>, String> {
         .try_fold(1usize, |a, &d| a.checked_mul(d))
         .ok_or_else(|| format!("`{name}`: dimensions {dims:?} overflow"))?;
     let (rty, real) = s.next(&format!("`{name}` data"))?;
-    let size =
-        element_size(rty).ok_or_else(|| format!("`{name}`: data type {rty} is not numeric"))?;
-    if real.len()
-        != count
-            .checked_mul(size)
-            .ok_or_else(|| format!("`{name}`: size overflows"))?
-    {
-        return Err(format!(
-            "`{name}`: dimensions {dims:?} need {count} values, the data holds {}",
-            real.len() / size
-        ));
+    let size = element_size(rty).ok_or_else(|| format!("`{name}`: data type {rty} is not numeric"))?;
+    if real.len() != count.checked_mul(size).ok_or_else(|| format!("`{name}`: size overflows"))? {
+        return Err(format!("`{name}`: dimensions {dims:?} need {count} values, the data holds {}", real.len() / size));
     }
-    Ok(Some(MatArray {
-        name,
-        dims,
-        data: numbers(rty, real),
-    }))
+    Ok(Some(MatArray { name, dims, data: numbers(rty, real) }))
 }

@@ -86,10 +86,7 @@ impl Mesh {
     }
 }
 
-fn check_finite<'a>(
-    attribute: &'static str,
-    values: impl Iterator<Item = &'a [f32]>,
-) -> Result<(), ExportError> {
+fn check_finite<'a>(attribute: &'static str, values: impl Iterator<Item = &'a [f32]>) -> Result<(), ExportError> {
     for (vertex, v) in values.enumerate() {
         if !v.iter().all(|x| x.is_finite()) {
             return Err(ExportError::NonFinite { attribute, vertex });

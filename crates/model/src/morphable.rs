@@ -107,11 +107,7 @@ pub struct ModelMeta {
 
 impl ModelMeta {
     pub fn layout(&self) -> CoeffLayout {
-        CoeffLayout {
-            identity: self.identity.count,
-            expression: self.expression.count,
-            albedo: self.albedo.count,
-        }
+        CoeffLayout { identity: self.identity.count, expression: self.expression.count, albedo: self.albedo.count }
     }
 }
 
@@ -135,13 +131,7 @@ pub enum Mask {
 }
 
 impl Mask {
-    pub const ALL: [Mask; 5] = [
-        Mask::Face,
-        Mask::NarrowFace,
-        Mask::Eyes,
-        Mask::Mouth,
-        Mask::NoseTip,
-    ];
+    pub const ALL: [Mask; 5] = [Mask::Face, Mask::NarrowFace, Mask::Eyes, Mask::Mouth, Mask::NoseTip];
     /// Tensor name in the file (`mask.<name>`).
     pub fn name(self) -> &'static str {
         match self {
@@ -191,28 +181,14 @@ enum AlbedoBasis {
 
 impl FaceBases {
     fn new(meta: &ModelMeta, parts: &ModelParts) -> Self {
-        let (n3, nf, nf3) = (
-            meta.vertex_count * 3,
-            meta.face_vertex_count,
-            meta.face_vertex_count * 3,
-        );
+        let (n3, nf, nf3) = (meta.vertex_count * 3, meta.face_vertex_count, meta.face_vertex_count * 3);
         let albedo = match SeparableBasis::try_new(&parts.albedo_basis, meta.albedo.count, nf) {
             Some(b) => AlbedoBasis::Separable(b),
-            None => AlbedoBasis::Plain(QuantizedBasis::new(
-                &parts.albedo_basis,
-                meta.albedo.count,
-                nf3,
-                nf3,
-            )),
+            None => AlbedoBasis::Plain(QuantizedBasis::new(&parts.albedo_basis, meta.albedo.count, nf3, nf3)),
         };
         Self {
             identity: QuantizedBasis::new(&parts.identity_basis, meta.identity.count, n3, nf3),
-            expression: QuantizedBasis::new(
-                &parts.expression_basis,
-                meta.expression.count,
-                n3,
-                nf3,
-            ),
+            expression: QuantizedBasis::new(&parts.expression_basis, meta.expression.count, n3, nf3),
             albedo,
         }
     }
@@ -270,12 +246,7 @@ impl MorphableModel {
         crate::format::validate(&meta, &parts)?;
         let vertex_uvs = vertex_uvs(&parts);
         let face_bases = FaceBases::new(&meta, &parts);
-        Ok(Self {
-            meta,
-            parts,
-            vertex_uvs,
-            face_bases,
-        })
+        Ok(Self { meta, parts, vertex_uvs, face_bases })
     }
 
     pub fn meta(&self) -> &ModelMeta {
@@ -367,21 +338,12 @@ impl MorphableModel {
     /// Checks a coefficient block against this model's count and prior.
     fn check(&self, block: &'static str, spec: Block, w: &[f32]) -> Result<(), ModelError> {
         if w.len() != spec.count {
-            return Err(ModelError::CoefficientCount {
-                block,
-                expected: spec.count,
-                got: w.len(),
-            });
+            return Err(ModelError::CoefficientCount { block, expected: spec.count, got: w.len() });
         }
         for (index, &value) in w.iter().enumerate() {
             if !spec.prior.accepts(value) {
                 // NaN fails `accepts` too.
-                return Err(ModelError::CoefficientValue {
-                    block,
-                    index,
-                    value,
-                    range: spec.prior.range(),
-                });
+                return Err(ModelError::CoefficientValue { block, index, value, range: spec.prior.range() });
             }
         }
         Ok(())
@@ -404,12 +366,7 @@ impl MorphableModel {
     /// Shape `s̄ + Us·ws + Ue·we` for an extent, positions in mm. The face area evaluates
     /// the 16-bit bases (within [`shape_error_bound`](Self::shape_error_bound) of the f32
     /// formula: for ICT at ±3σ measured ≤ 3.4 µm, bound ≤ 12 µm), the full mesh the f32 bases.
-    pub fn shape(
-        &self,
-        identity: &[f32],
-        expression: &[f32],
-        extent: Extent,
-    ) -> Result<Vec<[f32; 3]>, ModelError> {
+    pub fn shape(&self, identity: &[f32], expression: &[f32], extent: Extent) -> Result<Vec<[f32; 3]>, ModelError> {
         let mut out = Vec::new();
         self.shape_into(identity, expression, extent, &mut out)?;
         Ok(out)
@@ -467,10 +424,7 @@ impl MorphableModel {
         let n = self.extent_vertices(extent);
         let n3 = n * 3;
         let stride = self.meta.vertex_count * 3;
-        let mut outs: Vec<Vec<[f32; 3]>> = identity
-            .iter()
-            .map(|_| self.mean_shape()[..n].to_vec())
-            .collect();
+        let mut outs: Vec<Vec<[f32; 3]>> = identity.iter().map(|_| self.mean_shape()[..n].to_vec()).collect();
         /// Values per block: 16 KB of one f32 mode (8 KB of a 16-bit one), reused from L1/L2
         /// for every face.
         const BLOCK: usize = 4096;
@@ -485,10 +439,8 @@ impl MorphableModel {
                 }
                 continue;
             }
-            for (basis, weights) in [
-                (&self.parts.identity_basis, identity),
-                (&self.parts.expression_basis, expression),
-            ] {
+            for (basis, weights) in [(&self.parts.identity_basis, identity), (&self.parts.expression_basis, expression)]
+            {
                 let modes = weights.first().map_or(0, |w| w.len());
                 for k in 0..modes {
                     let m = &basis[k * stride + start..k * stride + end];
@@ -518,12 +470,7 @@ impl MorphableModel {
     }
 
     /// [`albedo`](Self::albedo) into a reused buffer.
-    pub fn albedo_into(
-        &self,
-        coeffs: &[f32],
-        extent: Extent,
-        out: &mut Vec<[f32; 3]>,
-    ) -> Result<(), ModelError> {
+    pub fn albedo_into(&self, coeffs: &[f32], extent: Extent, out: &mut Vec<[f32; 3]>) -> Result<(), ModelError> {
         self.check("albedo", self.meta.albedo, coeffs)?;
         let n = self.extent_vertices(extent);
         out.clear();
@@ -559,12 +506,7 @@ impl MorphableModel {
     /// Like [`instance`](Self::instance) into a reused mesh: positions and colours are
     /// overwritten; triangles and UVs are copied only when they differ from what the mesh
     /// already holds (a compare is cheaper than a copy into fresh memory). Normals are cleared.
-    pub fn instance_into(
-        &self,
-        c: &Coefficients,
-        extent: Extent,
-        mesh: &mut Mesh,
-    ) -> Result<(), ModelError> {
+    pub fn instance_into(&self, c: &Coefficients, extent: Extent, mesh: &mut Mesh) -> Result<(), ModelError> {
         self.shape_into(&c.identity, &c.expression, extent, &mut mesh.positions)?;
         let colors = mesh.colors.get_or_insert_with(Vec::new);
         self.albedo_into(&c.albedo, extent, colors)?;

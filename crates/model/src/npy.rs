@@ -27,28 +27,19 @@ pub fn parse(bytes: &[u8], file: &str) -> Result<Array, ModelError> {
             (n, 12)
         }
         v => {
-            return Err(err(format!(
-                "format version {v}.{} is not supported",
-                bytes[7]
-            )));
+            return Err(err(format!("format version {v}.{} is not supported", bytes[7])));
         }
     };
     let end = start
         .checked_add(header_len)
         .filter(|&e| e <= bytes.len())
-        .ok_or_else(|| {
-            err(format!(
-                "header of {header_len} bytes runs past the end of the file"
-            ))
-        })?;
-    let header =
-        std::str::from_utf8(&bytes[start..end]).map_err(|_| err("header is not text".into()))?;
+        .ok_or_else(|| err(format!("header of {header_len} bytes runs past the end of the file")))?;
+    let header = std::str::from_utf8(&bytes[start..end]).map_err(|_| err("header is not text".into()))?;
     let descr = dict_value(header, "descr").ok_or_else(|| err("header has no 'descr'".into()))?;
     if descr.trim_matches(|c| c == '\'' || c == '"') != "<f4" {
         return Err(err(format!("dtype {descr} is not supported (only '<f4')")));
     }
-    let fortran = dict_value(header, "fortran_order")
-        .ok_or_else(|| err("header has no 'fortran_order'".into()))?;
+    let fortran = dict_value(header, "fortran_order").ok_or_else(|| err("header has no 'fortran_order'".into()))?;
     if fortran != "False" {
         return Err(err("Fortran-order arrays are not supported".into()));
     }
@@ -59,10 +50,7 @@ pub fn parse(bytes: &[u8], file: &str) -> Result<Array, ModelError> {
         .ok_or_else(|| err(format!("shape {shape_s} is not a tuple")))?;
     let mut shape = Vec::new();
     for d in inner.split(',').map(str::trim).filter(|d| !d.is_empty()) {
-        shape.push(
-            d.parse::<usize>()
-                .map_err(|_| err(format!("shape entry {d:?} is not a size")))?,
-        );
+        shape.push(d.parse::<usize>().map_err(|_| err(format!("shape entry {d:?} is not a size")))?);
     }
     let count = shape
         .iter()
@@ -76,12 +64,7 @@ pub fn parse(bytes: &[u8], file: &str) -> Result<Array, ModelError> {
             data_bytes.len()
         )));
     }
-    let data = data_bytes
-        .as_chunks::<4>()
-        .0
-        .iter()
-        .map(|b| f32::from_le_bytes(*b))
-        .collect();
+    let data = data_bytes.as_chunks::<4>().0.iter().map(|b| f32::from_le_bytes(*b)).collect();
     Ok(Array { shape, data })
 }
 
@@ -89,10 +72,7 @@ pub fn parse(bytes: &[u8], file: &str) -> Result<Array, ModelError> {
 fn dict_value<'a>(header: &'a str, key: &str) -> Option<&'a str> {
     let pat1 = format!("'{key}':");
     let pat2 = format!("\"{key}\":");
-    let pos = header
-        .find(&pat1)
-        .map(|p| p + pat1.len())
-        .or_else(|| header.find(&pat2).map(|p| p + pat2.len()))?;
+    let pos = header.find(&pat1).map(|p| p + pat1.len()).or_else(|| header.find(&pat2).map(|p| p + pat2.len()))?;
     let rest = header[pos..].trim_start();
     let mut depth = 0i32;
     for (i, c) in rest.char_indices() {
@@ -146,15 +126,7 @@ mod tests {
             assert_eq!(a.shape, vec![2, 3]);
             assert_eq!(a.data, d);
         }
-        let a = parse(
-            &npy(
-                1,
-                "{'descr': '<f4', 'fortran_order': False, 'shape': (4,), }",
-                &d[..4],
-            ),
-            "b",
-        )
-        .unwrap();
+        let a = parse(&npy(1, "{'descr': '<f4', 'fortran_order': False, 'shape': (4,), }", &d[..4]), "b").unwrap();
         assert_eq!(a.shape, vec![4]);
     }
 
@@ -164,39 +136,14 @@ mod tests {
         let d = [0.0f32; 6];
         let cases: Vec<(Vec<u8>, &str)> = vec![
             (b"hello world".to_vec(), "magic"),
-            (
-                npy(
-                    1,
-                    "{'descr': '<f8', 'fortran_order': False, 'shape': (2, 3), }",
-                    &d,
-                ),
-                "dtype",
-            ),
-            (
-                npy(
-                    1,
-                    "{'descr': '<f4', 'fortran_order': True, 'shape': (2, 3), }",
-                    &d,
-                ),
-                "Fortran",
-            ),
+            (npy(1, "{'descr': '<f8', 'fortran_order': False, 'shape': (2, 3), }", &d), "dtype"),
+            (npy(1, "{'descr': '<f4', 'fortran_order': True, 'shape': (2, 3), }", &d), "Fortran"),
             (npy(1, ok, &d[..5]), "needs 24 bytes"),
             (
-                npy(
-                    1,
-                    "{'descr': '<f4', 'fortran_order': False, 'shape': (99999999999, 99999999999, 9999999), }",
-                    &d,
-                ),
+                npy(1, "{'descr': '<f4', 'fortran_order': False, 'shape': (99999999999, 99999999999, 9999999), }", &d),
                 "overflows",
             ),
-            (
-                npy(
-                    1,
-                    "{'descr': '<f4', 'fortran_order': False, 'shape': (1000000000, 3), }",
-                    &d,
-                ),
-                "needs",
-            ),
+            (npy(1, "{'descr': '<f4', 'fortran_order': False, 'shape': (1000000000, 3), }", &d), "needs"),
             (
                 {
                     let mut b = npy(1, ok, &d);

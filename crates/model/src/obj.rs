@@ -32,11 +32,7 @@ pub fn parse(text: &str, file: &str) -> Result<Obj, ModelError> {
     let mut material = None;
     for (i, raw) in text.lines().enumerate() {
         let line_no = i + 1;
-        let err = |problem: String| ModelError::Parse {
-            file: file.to_string(),
-            line: line_no,
-            problem,
-        };
+        let err = |problem: String| ModelError::Parse { file: file.to_string(), line: line_no, problem };
         let line = raw.split('#').next().unwrap_or("").trim();
         let mut it = line.split_ascii_whitespace();
         let Some(tag) = it.next() else { continue };
@@ -46,16 +42,11 @@ pub fn parse(text: &str, file: &str) -> Result<Obj, ModelError> {
                 obj.positions.push(p);
             }
             "vt" => {
-                let p =
-                    floats::<2>(&mut it).map_err(|e| err(format!("texture coordinate: {e}")))?;
+                let p = floats::<2>(&mut it).map_err(|e| err(format!("texture coordinate: {e}")))?;
                 obj.uvs.push(p);
             }
             "f" => {
-                let mut poly = Polygon {
-                    vertices: Vec::new(),
-                    uvs: Vec::new(),
-                    material,
-                };
+                let mut poly = Polygon { vertices: Vec::new(), uvs: Vec::new(), material };
                 for (k, corner) in it.enumerate() {
                     if k >= MAX_POLYGON {
                         return Err(err(format!("face has more than {MAX_POLYGON} corners")));
@@ -67,31 +58,23 @@ pub fn parse(text: &str, file: &str) -> Result<Obj, ModelError> {
                     poly.vertices.push(vi);
                     match refs.next() {
                         Some(t) if !t.is_empty() => {
-                            let ti = index(t, obj.uvs.len()).map_err(|e| {
-                                err(format!("face corner {corner:?}: texture coordinate {e}"))
-                            })?;
+                            let ti = index(t, obj.uvs.len())
+                                .map_err(|e| err(format!("face corner {corner:?}: texture coordinate {e}")))?;
                             poly.uvs.push(ti);
                         }
                         _ => {}
                     }
                 }
                 if poly.vertices.len() < 3 {
-                    return Err(err(format!(
-                        "face has {} corners (needs at least 3)",
-                        poly.vertices.len()
-                    )));
+                    return Err(err(format!("face has {} corners (needs at least 3)", poly.vertices.len())));
                 }
                 if !poly.uvs.is_empty() && poly.uvs.len() != poly.vertices.len() {
-                    return Err(err(
-                        "face mixes corners with and without texture coordinates".into(),
-                    ));
+                    return Err(err("face mixes corners with and without texture coordinates".into()));
                 }
                 obj.polygons.push(poly);
             }
             "usemtl" => {
-                let name = it
-                    .next()
-                    .ok_or_else(|| err("usemtl without a name".into()))?;
+                let name = it.next().ok_or_else(|| err("usemtl without a name".into()))?;
                 let id = match obj.materials.iter().position(|m| m == name) {
                     Some(id) => id,
                     None => {
@@ -110,9 +93,7 @@ pub fn parse(text: &str, file: &str) -> Result<Obj, ModelError> {
 fn floats<const K: usize>(it: &mut std::str::SplitAsciiWhitespace) -> Result<[f32; K], String> {
     let mut out = [0.0f32; K];
     for (k, o) in out.iter_mut().enumerate() {
-        let s = it
-            .next()
-            .ok_or_else(|| format!("expected {K} numbers, found {k}"))?;
+        let s = it.next().ok_or_else(|| format!("expected {K} numbers, found {k}"))?;
         let v: f32 = s.parse().map_err(|_| format!("{s:?} is not a number"))?;
         if !v.is_finite() {
             return Err(format!("{s:?} is not finite"));
@@ -124,9 +105,7 @@ fn floats<const K: usize>(it: &mut std::str::SplitAsciiWhitespace) -> Result<[f3
 
 /// Resolves a 1-based (or negative, relative) OBJ index against `count` items defined so far.
 fn index(s: &str, count: usize) -> Result<u32, String> {
-    let i: i64 = s
-        .parse()
-        .map_err(|_| format!("index {s:?} is not an integer"))?;
+    let i: i64 = s.parse().map_err(|_| format!("index {s:?} is not an integer"))?;
     let resolved = if i > 0 {
         i - 1
     } else if i < 0 {
@@ -135,9 +114,7 @@ fn index(s: &str, count: usize) -> Result<u32, String> {
         return Err("index 0 is invalid (OBJ indices start at 1)".into());
     };
     if resolved < 0 || resolved >= count as i64 {
-        return Err(format!(
-            "index {i} refers to an undefined element ({count} defined)"
-        ));
+        return Err(format!("index {i} refers to an undefined element ({count} defined)"));
     }
     Ok(resolved as u32)
 }
@@ -169,20 +146,14 @@ mod tests {
             ("v 0 0 0\nf 1 2 3\n", 2, "undefined"),
             ("v 0 0 0\nv 0 0 0\nv 0 0 0\nf 1 2 0\n", 4, "index 0"),
             ("v 0 0 0\nv 0 0 0\nf 1 2\n", 3, "at least 3"),
-            (
-                "v 0 0 0\nv 0 0 0\nv 0 0 0\nvt 0 0\nf 1/1 2 3/1\n",
-                5,
-                "mixes",
-            ),
+            ("v 0 0 0\nv 0 0 0\nv 0 0 0\nvt 0 0\nf 1/1 2 3/1\n", 5, "mixes"),
             ("\nusemtl\n", 2, "without a name"),
             ("v 1 nan 0\n", 1, "not finite"),
         ];
         for (text, line, msg) in cases {
             let e = parse(text, "bad.obj").unwrap_err();
             match &e {
-                ModelError::Parse {
-                    line: l, problem, ..
-                } => {
+                ModelError::Parse { line: l, problem, .. } => {
                     assert_eq!(*l, line, "{text:?}: {e}");
                     assert!(problem.contains(msg), "{text:?}: {e}");
                 }

@@ -19,9 +19,7 @@ pub fn mirror_map(points: &[[f32; 3]], group: &[u8], group_match: impl Fn(u8) ->
     let mut distance = Vec::with_capacity(points.len());
     for (i, p) in points.iter().enumerate() {
         let q = [-p[0], p[1], p[2]];
-        let (j, d) = grid
-            .nearest(q, group_match(group[i]))
-            .unwrap_or((i as u32, 0.0));
+        let (j, d) = grid.nearest(q, group_match(group[i])).unwrap_or((i as u32, 0.0));
         map.push(j);
         distance.push(d);
     }
@@ -49,9 +47,7 @@ impl<'a> Grid<'a> {
             }
         }
         // About two points per cell on a surface-like cloud.
-        let extent = (0..3)
-            .map(|a| (hi[a] - lo[a]).max(1e-6))
-            .fold(0.0f32, f32::max);
+        let extent = (0..3).map(|a| (hi[a] - lo[a]).max(1e-6)).fold(0.0f32, f32::max);
         let cell = (extent / (points.len() as f32 / 2.0).sqrt().max(1.0)).max(1e-6);
         let dims = [0, 1, 2].map(|a| (((hi[a] - lo[a]) / cell) as usize + 1).min(1024));
         let mut counts = vec![0u32; dims[0] * dims[1] * dims[2] + 1];
@@ -72,24 +68,13 @@ impl<'a> Grid<'a> {
             items[fill[c] as usize] = i as u32;
             fill[c] += 1;
         }
-        Self {
-            points,
-            group,
-            lo,
-            cell,
-            dims,
-            start: counts,
-            items,
-        }
+        Self { points, group, lo, cell, dims, start: counts, items }
     }
 
     fn nearest(&self, q: [f32; 3], want: u8) -> Option<(u32, f32)> {
         let c = [0, 1, 2].map(|a| ((q[a] - self.lo[a]) / self.cell).floor() as i64);
         // Far enough to cover the whole grid from q, even when q lies outside it.
-        let max_r = (0..3)
-            .map(|a| self.dims[a] as i64 + c[a].abs() + 1)
-            .max()
-            .unwrap_or(1);
+        let max_r = (0..3).map(|a| self.dims[a] as i64 + c[a].abs() + 1).max().unwrap_or(1);
         let mut best: Option<(u32, f32)> = None;
         for r in 0..=max_r {
             // Every point outside the cube of radius r cells is farther than (r)·cell from q.
@@ -101,8 +86,7 @@ impl<'a> Grid<'a> {
             for z in c[2] - r..=c[2] + r {
                 for y in c[1] - r..=c[1] + r {
                     for x in c[0] - r..=c[0] + r {
-                        let shell =
-                            (x - c[0]).abs() == r || (y - c[1]).abs() == r || (z - c[2]).abs() == r;
+                        let shell = (x - c[0]).abs() == r || (y - c[1]).abs() == r || (z - c[2]).abs() == r;
                         if !shell {
                             continue;
                         }
@@ -114,17 +98,12 @@ impl<'a> Grid<'a> {
                             continue;
                         }
                         let cell = (z * self.dims[1] + y) * self.dims[0] + x;
-                        for &j in
-                            &self.items[self.start[cell] as usize..self.start[cell + 1] as usize]
-                        {
+                        for &j in &self.items[self.start[cell] as usize..self.start[cell + 1] as usize] {
                             if self.group[j as usize] != want {
                                 continue;
                             }
                             let p = self.points[j as usize];
-                            let d = ((p[0] - q[0]).powi(2)
-                                + (p[1] - q[1]).powi(2)
-                                + (p[2] - q[2]).powi(2))
-                            .sqrt();
+                            let d = ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt();
                             if best.is_none_or(|(_, bd)| d < bd) {
                                 best = Some((j, d));
                             }
@@ -146,14 +125,10 @@ mod tests {
     fn matches_brute_force() {
         let mut s = 12345u64;
         let mut rnd = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
             ((s >> 33) as f32 / (1u64 << 31) as f32) * 2.0 - 1.0
         };
-        let pts: Vec<[f32; 3]> = (0..2000)
-            .map(|_| [rnd() * 50.0, rnd() * 80.0, rnd() * 10.0])
-            .collect();
+        let pts: Vec<[f32; 3]> = (0..2000).map(|_| [rnd() * 50.0, rnd() * 80.0, rnd() * 10.0]).collect();
         let group: Vec<u8> = (0..2000).map(|i| (i % 3) as u8).collect();
         let swap = |g: u8| {
             if g == 1 {
@@ -172,8 +147,7 @@ mod tests {
                 if group[j] != swap(group[i]) {
                     continue;
                 }
-                let d =
-                    ((r[0] - q[0]).powi(2) + (r[1] - q[1]).powi(2) + (r[2] - q[2]).powi(2)).sqrt();
+                let d = ((r[0] - q[0]).powi(2) + (r[1] - q[1]).powi(2) + (r[2] - q[2]).powi(2)).sqrt();
                 if d < best.1 {
                     best = (j, d);
                 }

@@ -48,16 +48,10 @@ fn matrix(name: &str, rows: usize, cols: usize, class: u32, store: u32, values: 
     let mut dims = (rows as i32).to_le_bytes().to_vec();
     dims.extend((cols as i32).to_le_bytes());
     let data: Vec<u8> = match store {
-        MI_SINGLE => values
-            .iter()
-            .flat_map(|&x| (x as f32).to_le_bytes())
-            .collect(),
+        MI_SINGLE => values.iter().flat_map(|&x| (x as f32).to_le_bytes()).collect(),
         MI_DOUBLE => values.iter().flat_map(|&x| x.to_le_bytes()).collect(),
         MI_UINT8 => values.iter().map(|&x| x as u8).collect(),
-        MI_INT32 => values
-            .iter()
-            .flat_map(|&x| (x as i32).to_le_bytes())
-            .collect(),
+        MI_INT32 => values.iter().flat_map(|&x| (x as i32).to_le_bytes()).collect(),
         _ => unreachable!(),
     };
     let mut body = element(MI_UINT32, &flags);
@@ -93,10 +87,7 @@ fn mat_file(vars: &[Vec<u8>], compress: bool) -> Vec<u8> {
 struct Rng(u64);
 impl Rng {
     fn next(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
+        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
         (self.0 >> 11) as f64 / (1u64 << 52) as f64 - 1.0
     }
 }
@@ -159,19 +150,7 @@ fn synth() -> Synth {
     let m = exp_vertices.len();
     let exp_pc: Vec<f32> = rnd(K_EXP * 3 * m, 0.1).iter().map(|&x| x as f32).collect();
     let exp_std: Vec<f64> = (0..K_EXP).map(|k| 3000.0 / (1.0 + k as f64)).collect();
-    Synth {
-        n,
-        mean_um: mean,
-        shape_pc,
-        shape_ev,
-        tex_mu,
-        tex_pc,
-        tex_ev,
-        tl,
-        exp_vertices,
-        exp_pc,
-        exp_std,
-    }
+    Synth { n, mean_um: mean, shape_pc, shape_ev, tex_mu, tex_pc, tex_ev, tl, exp_vertices, exp_pc, exp_std }
 }
 
 struct Files {
@@ -187,9 +166,7 @@ fn write_files(s: &Synth, compress: bool, tag: &str) -> Files {
     let dir = std::env::temp_dir().join(format!("facerecon-bfm-{tag}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let n3 = 3 * s.n;
-    let tl: Vec<f64> = (0..3)
-        .flat_map(|c| s.tl.iter().map(move |t| t[c] as f64))
-        .collect();
+    let tl: Vec<f64> = (0..3).flat_map(|c| s.tl.iter().map(move |t| t[c] as f64)).collect();
     let vars = vec![
         matrix("shapeMU", n3, 1, CLASS_SINGLE, MI_SINGLE, &s.mean_um),
         matrix("shapePC", n3, K_SHAPE, CLASS_SINGLE, MI_SINGLE, &s.shape_pc),
@@ -199,14 +176,7 @@ fn write_files(s: &Synth, compress: bool, tag: &str) -> Files {
         matrix("texEV", K_SHAPE, 1, CLASS_DOUBLE, MI_DOUBLE, &s.tex_ev),
         // Double class stored as uint8, as MATLAB does for small integers.
         matrix("tl", s.tl.len(), 3, CLASS_DOUBLE, MI_UINT8, &tl),
-        matrix(
-            "segbin",
-            4,
-            1,
-            CLASS_DOUBLE,
-            MI_DOUBLE,
-            &[1.0, 0.0, 0.0, 1.0],
-        ),
+        matrix("segbin", 4, 1, CLASS_DOUBLE, MI_DOUBLE, &[1.0, 0.0, 0.0, 1.0]),
     ];
     std::fs::write(dir.join("01_MorphableModel.mat"), mat_file(&vars, compress)).unwrap();
     let m = s.exp_vertices.len();
@@ -219,33 +189,19 @@ fn write_files(s: &Synth, compress: bool, tag: &str) -> Files {
     let idx: Vec<f64> = s.exp_vertices.iter().map(|&v| v as f64 + 1.0).collect();
     std::fs::write(
         dir.join("BFM_exp_idx.mat"),
-        mat_file(
-            &[matrix("trimIndex", m, 1, CLASS_DOUBLE, MI_INT32, &idx)],
-            compress,
-        ),
+        mat_file(&[matrix("trimIndex", m, 1, CLASS_DOUBLE, MI_INT32, &idx)], compress),
     )
     .unwrap();
     Files { dir }
 }
 
 fn sources(d: &Path) -> (PathBuf, PathBuf, PathBuf, PathBuf) {
-    (
-        d.join("01_MorphableModel.mat"),
-        d.join("Exp_Pca.bin"),
-        d.join("std_exp.txt"),
-        d.join("BFM_exp_idx.mat"),
-    )
+    (d.join("01_MorphableModel.mat"), d.join("Exp_Pca.bin"), d.join("std_exp.txt"), d.join("BFM_exp_idx.mat"))
 }
 
 fn import(d: &Path) -> Result<facerecon_model::MorphableModel, facerecon_model::ModelError> {
     let (mat, exp, std, idx) = sources(d);
-    bfm::import(&BfmSources {
-        mat: &mat,
-        exp: &exp,
-        exp_std: &std,
-        exp_index: Some(&idx),
-        landmarks: None,
-    })
+    bfm::import(&BfmSources { mat: &mat, exp: &exp, exp_std: &std, exp_index: Some(&idx), landmarks: None })
 }
 
 #[test]
@@ -265,9 +221,7 @@ fn imports_compressed_and_uncompressed_files_identically_and_correctly() {
 
     // The crop, recomputed here from the documented rule.
     let mm = |v: usize| [0, 1, 2].map(|c| s.mean_um[3 * v + c] as f32 / 1000.0);
-    let tip = (0..s.n)
-        .max_by(|&x, &y| mm(x)[2].total_cmp(&mm(y)[2]))
-        .unwrap();
+    let tip = (0..s.n).max_by(|&x, &y| mm(x)[2].total_cmp(&mm(y)[2])).unwrap();
     let t = mm(tip);
     let kept: Vec<usize> = (0..s.n)
         .filter(|&v| {
@@ -276,10 +230,7 @@ fn imports_compressed_and_uncompressed_files_identically_and_correctly() {
             s.exp_vertices.contains(&v) && d <= CROP_RADIUS_MM && p[2] >= t[2] - CROP_DEPTH_MM
         })
         .collect();
-    assert!(
-        kept.len() < G * G - 3 && kept.len() > 50,
-        "the crop removes something"
-    );
+    assert!(kept.len() < G * G - 3 && kept.len() > 50, "the crop removes something");
     assert_eq!(m.vertex_count(), kept.len());
     assert_eq!(m.face_vertex_count(), kept.len());
 
@@ -300,11 +251,7 @@ fn imports_compressed_and_uncompressed_files_identically_and_correctly() {
                 want += ex[k] as f64 * s.exp_pc[k * 3 * mlen + 3 * j + c] as f64 * s.exp_std[k];
             }
             let want = want / 1000.0;
-            assert!(
-                (got[i][c] as f64 - want).abs() < 1e-3,
-                "vertex {v} axis {c}: {} vs {want}",
-                got[i][c]
-            );
+            assert!((got[i][c] as f64 - want).abs() < 1e-3, "vertex {v} axis {c}: {} vs {want}", got[i][c]);
         }
     }
     // Albedo: the mean is the sRGB mean linearised; a small step follows the slope.
@@ -313,11 +260,7 @@ fn imports_compressed_and_uncompressed_files_identically_and_correctly() {
     w[0] = 0.01;
     let a1 = m.albedo(&w, Extent::Face).unwrap();
     let lin = |x: f64| {
-        if x <= 0.04045 {
-            x / 12.92
-        } else {
-            ((x + 0.055) / 1.055).powf(2.4)
-        }
+        if x <= 0.04045 { x / 12.92 } else { ((x + 0.055) / 1.055).powf(2.4) }
     };
     for (i, &v) in kept.iter().enumerate() {
         for c in 0..3 {
@@ -345,27 +288,17 @@ fn landmark_file_is_mapped_into_the_crop() {
     let ids: Vec<String> = (0..68).map(|i| (G * 6 + 4 + (i % 5)).to_string()).collect();
     let lm = f.dir.join("lm.txt");
     std::fs::write(&lm, ids.join(" ")).unwrap();
-    let m = bfm::import(&BfmSources {
-        mat: &mat,
-        exp: &exp,
-        exp_std: &std,
-        exp_index: Some(&idx),
-        landmarks: Some(&lm),
-    })
-    .unwrap();
+    let m =
+        bfm::import(&BfmSources { mat: &mat, exp: &exp, exp_std: &std, exp_index: Some(&idx), landmarks: Some(&lm) })
+            .unwrap();
     assert_eq!(m.landmarks().len(), 68);
     let p = m.mean_shape();
     let want = [0, 1, 2].map(|c| s.mean_um[3 * (G * 6 + 4) + c] as f32 / 1000.0);
     assert_eq!(p[m.landmarks()[0] as usize], want);
     std::fs::write(&lm, "1 2 3").unwrap();
-    let e = bfm::import(&BfmSources {
-        mat: &mat,
-        exp: &exp,
-        exp_std: &std,
-        exp_index: Some(&idx),
-        landmarks: Some(&lm),
-    })
-    .unwrap_err();
+    let e =
+        bfm::import(&BfmSources { mat: &mat, exp: &exp, exp_std: &std, exp_index: Some(&idx), landmarks: Some(&lm) })
+            .unwrap_err();
     assert!(e.to_string().contains("expected 68"), "{e}");
 }
 
@@ -374,45 +307,30 @@ fn malformed_inputs_are_refused_with_clear_errors() {
     let s = synth();
     let f = write_files(&s, false, "bad");
     let (mat, exp, std, idx) = sources(&f.dir);
-    let try_with =
-        |mat_b: Option<Vec<u8>>, exp_b: Option<Vec<u8>>, idx_b: Option<Vec<u8>>, use_idx: bool| {
-            let d = f.dir.join("case");
-            std::fs::create_dir_all(&d).unwrap();
-            let (m2, e2, i2) = (d.join("m.mat"), d.join("e.bin"), d.join("i.mat"));
-            std::fs::write(&m2, mat_b.unwrap_or_else(|| std::fs::read(&mat).unwrap())).unwrap();
-            std::fs::write(&e2, exp_b.unwrap_or_else(|| std::fs::read(&exp).unwrap())).unwrap();
-            std::fs::write(&i2, idx_b.unwrap_or_else(|| std::fs::read(&idx).unwrap())).unwrap();
-            bfm::import(&BfmSources {
-                mat: &m2,
-                exp: &e2,
-                exp_std: &std,
-                exp_index: use_idx.then_some(i2.as_path()),
-                landmarks: None,
-            })
-            .map(|_| ())
-            .unwrap_err()
-            .to_string()
-        };
+    let try_with = |mat_b: Option<Vec<u8>>, exp_b: Option<Vec<u8>>, idx_b: Option<Vec<u8>>, use_idx: bool| {
+        let d = f.dir.join("case");
+        std::fs::create_dir_all(&d).unwrap();
+        let (m2, e2, i2) = (d.join("m.mat"), d.join("e.bin"), d.join("i.mat"));
+        std::fs::write(&m2, mat_b.unwrap_or_else(|| std::fs::read(&mat).unwrap())).unwrap();
+        std::fs::write(&e2, exp_b.unwrap_or_else(|| std::fs::read(&exp).unwrap())).unwrap();
+        std::fs::write(&i2, idx_b.unwrap_or_else(|| std::fs::read(&idx).unwrap())).unwrap();
+        bfm::import(&BfmSources {
+            mat: &m2,
+            exp: &e2,
+            exp_std: &std,
+            exp_index: use_idx.then_some(i2.as_path()),
+            landmarks: None,
+        })
+        .map(|_| ())
+        .unwrap_err()
+        .to_string()
+    };
     let good_mat = std::fs::read(&mat).unwrap();
     let good_exp = std::fs::read(&exp).unwrap();
     let cases: Vec<(String, &str)> = vec![
-        (
-            try_with(
-                Some(good_mat[..good_mat.len() - 100].to_vec()),
-                None,
-                None,
-                true,
-            ),
-            "past the end",
-        ),
-        (
-            try_with(Some(good_mat[..60].to_vec()), None, None, true),
-            "too short",
-        ),
-        (
-            try_with(Some(b"not a mat file".repeat(20)), None, None, true),
-            "not a MATLAB",
-        ),
+        (try_with(Some(good_mat[..good_mat.len() - 100].to_vec()), None, None, true), "past the end"),
+        (try_with(Some(good_mat[..60].to_vec()), None, None, true), "too short"),
+        (try_with(Some(b"not a mat file".repeat(20)), None, None, true), "not a MATLAB"),
         (
             try_with(
                 Some({
@@ -429,10 +347,7 @@ fn malformed_inputs_are_refused_with_clear_errors() {
         ),
         (
             try_with(
-                Some(mat_file(
-                    &[matrix("shapeMU", 3, 1, CLASS_DOUBLE, MI_DOUBLE, &[0.0; 3])],
-                    false,
-                )),
+                Some(mat_file(&[matrix("shapeMU", 3, 1, CLASS_DOUBLE, MI_DOUBLE, &[0.0; 3])], false)),
                 None,
                 None,
                 true,
@@ -469,15 +384,7 @@ fn malformed_inputs_are_refused_with_clear_errors() {
             ),
             "need",
         ),
-        (
-            try_with(
-                None,
-                Some(good_exp[..good_exp.len() - 4].to_vec()),
-                None,
-                true,
-            ),
-            "whole vertices",
-        ),
+        (try_with(None, Some(good_exp[..good_exp.len() - 4].to_vec()), None, true), "whole vertices"),
         (
             try_with(
                 None,
@@ -495,17 +402,7 @@ fn malformed_inputs_are_refused_with_clear_errors() {
             try_with(
                 None,
                 None,
-                Some(mat_file(
-                    &[matrix(
-                        "trimIndex",
-                        3,
-                        1,
-                        CLASS_DOUBLE,
-                        MI_DOUBLE,
-                        &[1.0, 2.0, 3.0],
-                    )],
-                    false,
-                )),
+                Some(mat_file(&[matrix("trimIndex", 3, 1, CLASS_DOUBLE, MI_DOUBLE, &[1.0, 2.0, 3.0])], false)),
                 true,
             ),
             "trimIndex has 3 entries",
@@ -516,20 +413,9 @@ fn malformed_inputs_are_refused_with_clear_errors() {
                 None,
                 None,
                 Some({
-                    let mut idx: Vec<f64> =
-                        s.exp_vertices.iter().map(|&v| v as f64 + 1.0).collect();
+                    let mut idx: Vec<f64> = s.exp_vertices.iter().map(|&v| v as f64 + 1.0).collect();
                     idx[4] = 1e6;
-                    mat_file(
-                        &[matrix(
-                            "trimIndex",
-                            idx.len(),
-                            1,
-                            CLASS_DOUBLE,
-                            MI_DOUBLE,
-                            &idx,
-                        )],
-                        true,
-                    )
+                    mat_file(&[matrix("trimIndex", idx.len(), 1, CLASS_DOUBLE, MI_DOUBLE, &idx)], true)
                 }),
                 true,
             ),
@@ -537,9 +423,6 @@ fn malformed_inputs_are_refused_with_clear_errors() {
         ),
     ];
     for (msg, want) in cases {
-        assert!(
-            msg.contains(want),
-            "error {msg:?} does not mention {want:?}"
-        );
+        assert!(msg.contains(want), "error {msg:?} does not mention {want:?}");
     }
 }

@@ -11,39 +11,19 @@ use safetensors::{Dtype, SafeTensors};
 /// A small valid model: a 3×3 grid (face = first 6 vertices), 2/1/2 modes, 68 landmarks.
 fn tiny() -> MorphableModel {
     let n = 9;
-    let mean_shape: Vec<f32> = (0..n)
-        .flat_map(|i| [(i % 3) as f32 * 10.0 - 10.0, (i / 3) as f32 * 10.0, 1.0])
-        .collect();
-    let triangles = vec![
-        [0, 1, 4],
-        [0, 4, 3],
-        [1, 2, 5],
-        [1, 5, 4],
-        [3, 4, 7],
-        [3, 7, 6],
-        [4, 5, 8],
-        [4, 8, 7],
-    ];
-    let ramp =
-        |k: usize, len: usize| (0..len).map(move |i| ((i * 7 + k * 3) % 11) as f32 * 0.1 - 0.5);
+    let mean_shape: Vec<f32> =
+        (0..n).flat_map(|i| [(i % 3) as f32 * 10.0 - 10.0, (i / 3) as f32 * 10.0, 1.0]).collect();
+    let triangles = vec![[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4], [3, 4, 7], [3, 7, 6], [4, 5, 8], [4, 8, 7]];
+    let ramp = |k: usize, len: usize| (0..len).map(move |i| ((i * 7 + k * 3) % 11) as f32 * 0.1 - 0.5);
     let meta = ModelMeta {
         name: "tiny".into(),
         source: "test".into(),
         licence: "none".into(),
         units: "mm".into(),
         format_version: FORMAT_VERSION,
-        identity: Block {
-            count: 2,
-            prior: Prior::Gaussian,
-        },
-        expression: Block {
-            count: 1,
-            prior: Prior::Blendshape,
-        },
-        albedo: Block {
-            count: 2,
-            prior: Prior::Gaussian,
-        },
+        identity: Block { count: 2, prior: Prior::Gaussian },
+        expression: Block { count: 1, prior: Prior::Blendshape },
+        albedo: Block { count: 2, prior: Prior::Gaussian },
         expression_names: vec!["smile".into()],
         region_names: vec!["face".into(), "rest".into()],
         vertex_count: n,
@@ -56,14 +36,10 @@ fn tiny() -> MorphableModel {
         identity_basis: (0..2).flat_map(|k| ramp(k, n * 3)).collect(),
         expression_basis: ramp(5, n * 3).collect(),
         mean_albedo: vec![0.5; n * 3],
-        albedo_basis: (0..2)
-            .flat_map(|k| ramp(k + 7, 6 * 3).map(|x| x * 0.1))
-            .collect(),
+        albedo_basis: (0..2).flat_map(|k| ramp(k + 7, 6 * 3).map(|x| x * 0.1)).collect(),
         uv_triangles: triangles.clone(),
         triangles,
-        uvs: (0..n)
-            .map(|i| [(i % 3) as f32 / 2.0, (i / 3) as f32 / 2.0])
-            .collect(),
+        uvs: (0..n).map(|i| [(i % 3) as f32 / 2.0, (i / 3) as f32 / 2.0]).collect(),
         landmarks: (0..68).map(|i| (i % 6) as u32).collect(),
         symmetry: vec![2, 1, 0, 5, 4, 3, 8, 7, 6],
         region_ids: vec![0, 0, 0, 0, 0, 0, 1, 1, 1],
@@ -99,26 +75,14 @@ impl safetensors::View for &T {
 }
 
 /// Decodes a file into editable tensors + metadata, applies `edit`, re-encodes.
-fn edited(
-    bytes: &[u8],
-    edit: impl FnOnce(&mut HashMap<String, T>, &mut HashMap<String, String>),
-) -> Vec<u8> {
+fn edited(bytes: &[u8], edit: impl FnOnce(&mut HashMap<String, T>, &mut HashMap<String, String>)) -> Vec<u8> {
     let st = SafeTensors::deserialize(bytes).unwrap();
     let (_, md) = SafeTensors::read_metadata(bytes).unwrap();
     let mut meta = md.metadata().clone().unwrap();
     let mut ts: HashMap<String, T> = st
         .tensors()
         .into_iter()
-        .map(|(k, v)| {
-            (
-                k,
-                T {
-                    dtype: v.dtype(),
-                    shape: v.shape().to_vec(),
-                    data: v.data().to_vec(),
-                },
-            )
-        })
+        .map(|(k, v)| (k, T { dtype: v.dtype(), shape: v.shape().to_vec(), data: v.data().to_vec() }))
         .collect();
     edit(&mut ts, &mut meta);
     safetensors::serialize(ts.iter().map(|(k, v)| (k.clone(), v)), Some(meta)).unwrap()
@@ -129,10 +93,7 @@ fn refused(bytes: &[u8], expect: &str) {
         Ok(_) => panic!("accepted a file that should fail with {expect:?}"),
         Err(e) => {
             let msg = e.to_string();
-            assert!(
-                msg.contains(expect),
-                "error {msg:?} does not mention {expect:?}"
-            );
+            assert!(msg.contains(expect), "error {msg:?} does not mention {expect:?}");
         }
     }
 }
@@ -161,8 +122,7 @@ fn shape_and_albedo_match_a_hand_computation() {
     for v in 0..9 {
         for c in 0..3 {
             let i = v * 3 + c;
-            let want = p.mean_shape[i] + 0.5 * p.identity_basis[i]
-                - 1.25 * p.identity_basis[27 + i]
+            let want = p.mean_shape[i] + 0.5 * p.identity_basis[i] - 1.25 * p.identity_basis[27 + i]
                 + 0.75 * p.expression_basis[i];
             assert!((got[v][c] - want).abs() < 1e-6);
         }
@@ -182,11 +142,7 @@ fn shape_and_albedo_match_a_hand_computation() {
     }
     for v in 0..9 {
         for c in 0..3 {
-            let want = if v < 6 {
-                0.5 + p.albedo_basis[v * 3 + c] + 2.0 * p.albedo_basis[18 + v * 3 + c]
-            } else {
-                0.5
-            };
+            let want = if v < 6 { 0.5 + p.albedo_basis[v * 3 + c] + 2.0 * p.albedo_basis[18 + v * 3 + c] } else { 0.5 };
             assert!((a[v][c] - want).abs() < 1e-6);
         }
     }
@@ -254,10 +210,7 @@ fn refuses_bad_metadata() {
     refused(&with("vertex_count", "999999999999"), "absurd");
     refused(&with("identity_count", "100000"), "absurd");
     refused(&with("expression_names", "[1,2"), "expression_names");
-    refused(
-        &with("expression_names", "[\"a\",\"b\"]"),
-        "2 expression names for 1",
-    );
+    refused(&with("expression_names", "[\"a\",\"b\"]"), "2 expression names for 1");
     refused(&with("face_vertex_count", "10"), "face vertex count");
     refused(&with("face_triangle_count", "0"), "face triangle count");
     refused(&with("region_names", "[]"), "region names");
@@ -273,9 +226,7 @@ fn f32_bytes(v: &[f32]) -> Vec<u8> {
 #[test]
 fn refuses_bad_tensors() {
     let bytes = tiny().to_bytes().unwrap();
-    let t = |name: &'static str, f: Box<dyn FnOnce(&mut T)>| {
-        edited(&bytes, move |ts, _| f(ts.get_mut(name).unwrap()))
-    };
+    let t = |name: &'static str, f: Box<dyn FnOnce(&mut T)>| edited(&bytes, move |ts, _| f(ts.get_mut(name).unwrap()));
     refused(
         &edited(&bytes, |ts, _| {
             ts.remove("symmetry");
@@ -283,10 +234,7 @@ fn refuses_bad_tensors() {
         "`symmetry`: missing",
     );
     // Wrong dtype.
-    refused(
-        &t("triangles", Box::new(|x| x.dtype = Dtype::I32)),
-        "dtype I32",
-    );
+    refused(&t("triangles", Box::new(|x| x.dtype = Dtype::I32)), "dtype I32");
     refused(
         &t(
             "mean_shape",
@@ -299,14 +247,8 @@ fn refuses_bad_tensors() {
         "dtype F64",
     );
     // Wrong shape.
-    refused(
-        &t("mean_shape", Box::new(|x| x.shape = vec![27, 1])),
-        "shape [27, 1]",
-    );
-    refused(
-        &t("identity_basis", Box::new(|x| x.shape = vec![1, 18, 3])),
-        "identity_basis",
-    );
+    refused(&t("mean_shape", Box::new(|x| x.shape = vec![27, 1])), "shape [27, 1]");
+    refused(&t("identity_basis", Box::new(|x| x.shape = vec![1, 18, 3])), "identity_basis");
     refused(
         &t(
             "mask.eyes",
@@ -324,20 +266,11 @@ fn refuses_bad_tensors() {
         ("uvs", f32::NEG_INFINITY),
         ("albedo_basis", f32::NAN),
     ] {
-        refused(
-            &t(
-                name,
-                Box::new(move |x| x.data[4..8].copy_from_slice(&v.to_le_bytes())),
-            ),
-            "must be finite",
-        );
+        refused(&t(name, Box::new(move |x| x.data[4..8].copy_from_slice(&v.to_le_bytes()))), "must be finite");
     }
     // Indices out of range.
     let u32_at = |name: &'static str, i: usize, v: u32| {
-        t(
-            name,
-            Box::new(move |x| x.data[i * 4..i * 4 + 4].copy_from_slice(&v.to_le_bytes())),
-        )
+        t(name, Box::new(move |x| x.data[i * 4..i * 4 + 4].copy_from_slice(&v.to_le_bytes())))
     };
     refused(&u32_at("triangles", 5, 9), "out of range");
     refused(&u32_at("triangles", 2, 7), "face area");
@@ -346,10 +279,7 @@ fn refuses_bad_tensors() {
     refused(&u32_at("landmarks", 10, 6), "landmarks");
     refused(&u32_at("symmetry", 8, u32::MAX), "symmetry");
     refused(&t("region_ids", Box::new(|x| x.data[3] = 2)), "region_ids");
-    refused(
-        &t("mask.face", Box::new(|x| x.data[0] = 7)),
-        "masks hold 0 or 1",
-    );
+    refused(&t("mask.face", Box::new(|x| x.data[0] = 7)), "masks hold 0 or 1");
     refused(
         &t(
             "landmarks",

@@ -12,19 +12,11 @@ const ALBEDO_BOUND: f32 = 8e-5;
 fn upstream_obj(name: &str) -> Vec<[f32; 3]> {
     let p = ict::default_source_dir().join("FaceXModel").join(name);
     let text = std::fs::read_to_string(&p).unwrap();
-    obj::parse(&text, name)
-        .unwrap()
-        .positions
-        .iter()
-        .map(|q| q.map(|x| x * 10.0))
-        .collect()
+    obj::parse(&text, name).unwrap().positions.iter().map(|q| q.map(|x| x * 10.0)).collect()
 }
 
 fn max_err(a: &[[f32; 3]], b: &[[f32; 3]]) -> f32 {
-    a.iter()
-        .zip(b)
-        .flat_map(|(x, y)| (0..3).map(move |c| (x[c] - y[c]).abs()))
-        .fold(0.0, f32::max)
+    a.iter().zip(b).flat_map(|(x, y)| (0..3).map(move |c| (x[c] - y[c]).abs())).fold(0.0, f32::max)
 }
 
 #[test]
@@ -43,48 +35,26 @@ fn counts_and_metadata() {
     assert!(meta.expression_names.iter().any(|n| n == "jawOpen"));
     // Triangle counts from an independent count over the OBJ text: a polygon with k corners
     // gives k − 2 triangles.
-    let text = std::fs::read_to_string(
-        ict::default_source_dir().join("FaceXModel/generic_neutral_mesh.obj"),
-    )
-    .unwrap();
-    let corners: Vec<usize> = text
-        .lines()
-        .filter(|l| l.starts_with("f "))
-        .map(|l| l.split_whitespace().count() - 1)
-        .collect();
+    let text = std::fs::read_to_string(ict::default_source_dir().join("FaceXModel/generic_neutral_mesh.obj")).unwrap();
+    let corners: Vec<usize> =
+        text.lines().filter(|l| l.starts_with("f ")).map(|l| l.split_whitespace().count() - 1).collect();
     assert_eq!(corners.len(), 26_384);
     let tris = |k: usize| corners[..k].iter().map(|c| c - 2).sum::<usize>();
     assert_eq!(m.face_triangle_count(), tris(9_230));
     assert_eq!(m.triangles().len(), tris(24_692));
-    assert!(
-        m.extent_triangles(Extent::Face)
-            .iter()
-            .flatten()
-            .all(|&v| v < 9_409)
-    );
+    assert!(m.extent_triangles(Extent::Face).iter().flatten().all(|&v| v < 9_409));
     let (uvs, uv_tris) = m.uvs();
     assert_eq!(uv_tris.len(), m.triangles().len());
     assert!(uvs.len() > m.vertex_count(), "UVs are split at seams");
     // UDIM-style tiles along u; the face area lies in the first tile.
-    assert!(
-        uvs.iter()
-            .all(|t| (0.0..7.0).contains(&t[0]) && (0.0..=1.0).contains(&t[1]))
-    );
+    assert!(uvs.iter().all(|t| (0.0..7.0).contains(&t[0]) && (0.0..=1.0).contains(&t[1])));
     let face_uv = &uv_tris[..m.face_triangle_count()];
-    assert!(
-        face_uv
-            .iter()
-            .flatten()
-            .all(|&i| uvs[i as usize].iter().all(|x| (0.0..=1.0).contains(x)))
-    );
+    assert!(face_uv.iter().flatten().all(|&i| uvs[i as usize].iter().all(|x| (0.0..=1.0).contains(x))));
     // Regions: per-vertex ids follow upstream's ranges.
     assert_eq!(m.region_ids()[9_408], 0);
     assert_eq!(m.region_ids()[9_409], 1);
     assert_eq!(meta.region_names[m.region_ids()[17_039] as usize], "teeth");
-    assert_eq!(
-        meta.region_names[m.region_ids()[24_590] as usize],
-        "iris_right"
-    );
+    assert_eq!(meta.region_names[m.region_ids()[24_590] as usize], "iris_right");
     let face: usize = m.mask(Mask::Face).iter().map(|&x| x as usize).sum();
     assert_eq!(face, 9_409);
     let narrow: usize = m.mask(Mask::NarrowFace).iter().map(|&x| x as usize).sum();
@@ -100,11 +70,7 @@ fn identity000_obj_equals_neutral_plus_first_mode() {
     let ex = vec![0.0; 53];
     let full = m.shape(&id, &ex, Extent::Full).unwrap();
     // cm text → f32 → ×10 on both sides, and a difference of two shapes: a few ULPs of mm.
-    assert!(
-        max_err(&full, &want[..full.len()]) < 2e-4,
-        "{}",
-        max_err(&full, &want)
-    );
+    assert!(max_err(&full, &want[..full.len()]) < 2e-4, "{}", max_err(&full, &want));
     let face = m.shape(&id, &ex, Extent::Face).unwrap();
     assert_eq!(face.len(), 9_409);
     // The face area is evaluated from the 16-bit bases: the full mesh's prefix within the bound.
@@ -119,12 +85,7 @@ fn identity000_obj_equals_neutral_plus_first_mode() {
 fn jaw_open_obj_equals_neutral_plus_blendshape() {
     let m = ict::load_default().unwrap();
     let want = upstream_obj("jawOpen.obj");
-    let j = m
-        .meta()
-        .expression_names
-        .iter()
-        .position(|n| n == "jawOpen")
-        .unwrap();
+    let j = m.meta().expression_names.iter().position(|n| n == "jawOpen").unwrap();
     let mut ex = vec![0.0; 53];
     ex[j] = 1.0;
     let got = m.shape(&vec![0.0; 100], &ex, Extent::Full).unwrap();
@@ -132,12 +93,8 @@ fn jaw_open_obj_equals_neutral_plus_blendshape() {
     // Half-open is halfway (linearity).
     ex[j] = 0.5;
     let half = m.shape(&vec![0.0; 100], &ex, Extent::Full).unwrap();
-    let mid: Vec<[f32; 3]> = m
-        .mean_shape()
-        .iter()
-        .zip(&got)
-        .map(|(a, b)| [0, 1, 2].map(|c| 0.5 * (a[c] + b[c])))
-        .collect();
+    let mid: Vec<[f32; 3]> =
+        m.mean_shape().iter().zip(&got).map(|(a, b)| [0, 1, 2].map(|c| 0.5 * (a[c] + b[c]))).collect();
     assert!(max_err(&half, &mid) < 1e-3);
     // The chin (landmark 8) moves down by centimetres.
     let chin = m.landmarks()[8] as usize;
@@ -168,8 +125,7 @@ fn symmetry_map_mirrors_the_face() {
     let mut worst = 0.0f32;
     for v in 0..m.face_vertex_count() {
         let q = p[s[v] as usize];
-        let d =
-            ((q[0] + p[v][0]).powi(2) + (q[1] - p[v][1]).powi(2) + (q[2] - p[v][2]).powi(2)).sqrt();
+        let d = ((q[0] + p[v][0]).powi(2) + (q[1] - p[v][1]).powi(2) + (q[2] - p[v][2]).powi(2)).sqrt();
         worst = worst.max(d);
     }
     assert!(worst < 3.0, "max mirror distance {worst} mm");
@@ -227,23 +183,11 @@ fn albedo_model_is_plausible_symmetric_and_orthogonal() {
     for a in 0..k {
         let ma = m.albedo_mode(a);
         let asym = (0..nf)
-            .map(|v| {
-                (0..3)
-                    .map(|c| (ma[v][c] - ma[s[v] as usize][c]).abs())
-                    .fold(0.0, f32::max)
-            })
+            .map(|v| (0..3).map(|c| (ma[v][c] - ma[s[v] as usize][c]).abs()).fold(0.0, f32::max))
             .fold(0.0, f32::max);
         let peak = ma.iter().flatten().fold(0.0f32, |x, y| x.max(y.abs()));
-        assert!(
-            asym < 0.02 * peak + 1e-6,
-            "mode {a}: asymmetry {asym} vs peak {peak}"
-        );
-        norms.push(
-            ma.iter()
-                .flatten()
-                .map(|x| (*x as f64).powi(2))
-                .sum::<f64>(),
-        );
+        assert!(asym < 0.02 * peak + 1e-6, "mode {a}: asymmetry {asym} vs peak {peak}");
+        norms.push(ma.iter().flatten().map(|x| (*x as f64).powi(2)).sum::<f64>());
     }
     for a in 0..k {
         for b in (a + 1)..k.min(a + 8) {
@@ -254,10 +198,7 @@ fn albedo_model_is_plausible_symmetric_and_orthogonal() {
                 .zip(m.albedo_mode(b).iter().flatten())
                 .map(|(x, y)| *x as f64 * *y as f64)
                 .sum();
-            assert!(
-                dot.abs() < 1e-3 * (norms[a] * norms[b]).sqrt(),
-                "modes {a},{b}"
-            );
+            assert!(dot.abs() < 1e-3 * (norms[a] * norms[b]).sqrt(), "modes {a},{b}");
         }
     }
     assert!(norms.windows(2).all(|w| w[1] <= w[0] * 1.0001));
@@ -273,27 +214,10 @@ fn shape_and_albedo_with_many_modes_match_a_naive_sum() {
     let m = ict::load_default().unwrap();
     let l = m.layout();
     // Dense and gappy weights (exercise the grouped and remainder paths).
-    let id: Vec<f32> = (0..l.identity)
-        .map(|k| {
-            if k % 9 == 4 {
-                0.0
-            } else {
-                ((k * 37 % 17) as f32 - 8.0) * 0.2
-            }
-        })
-        .collect();
-    let ex: Vec<f32> = (0..l.expression)
-        .map(|k| {
-            if k % 3 == 0 {
-                0.0
-            } else {
-                (k * 13 % 10) as f32 * 0.1
-            }
-        })
-        .collect();
-    let tex: Vec<f32> = (0..l.albedo)
-        .map(|k| ((k * 7 % 11) as f32 - 5.0) * 0.3)
-        .collect();
+    let id: Vec<f32> =
+        (0..l.identity).map(|k| if k % 9 == 4 { 0.0 } else { ((k * 37 % 17) as f32 - 8.0) * 0.2 }).collect();
+    let ex: Vec<f32> = (0..l.expression).map(|k| if k % 3 == 0 { 0.0 } else { (k * 13 % 10) as f32 * 0.1 }).collect();
+    let tex: Vec<f32> = (0..l.albedo).map(|k| ((k * 7 % 11) as f32 - 5.0) * 0.3).collect();
     let got = m.shape(&id, &ex, Extent::Face).unwrap();
     // The face area is evaluated from the 16-bit bases (stated bound + f32 rounding).
     let tol = m.shape_error_bound(&id, &ex) as f64 + 1e-4;
@@ -314,32 +238,18 @@ fn shape_and_albedo_with_many_modes_match_a_naive_sum() {
 fn batched_shapes_equal_single_shapes() {
     let m = ict::load_default().unwrap();
     let l = m.layout();
-    let ids: Vec<Vec<f32>> = (0..5)
-        .map(|b| {
-            (0..l.identity)
-                .map(|k| ((k + b) % 5) as f32 * 0.3 - 0.6)
-                .collect()
-        })
-        .collect();
-    let exs: Vec<Vec<f32>> = (0..5)
-        .map(|b| {
-            (0..l.expression)
-                .map(|k| if (k + b) % 4 == 0 { 0.8 } else { 0.0 })
-                .collect()
-        })
-        .collect();
+    let ids: Vec<Vec<f32>> =
+        (0..5).map(|b| (0..l.identity).map(|k| ((k + b) % 5) as f32 * 0.3 - 0.6).collect()).collect();
+    let exs: Vec<Vec<f32>> =
+        (0..5).map(|b| (0..l.expression).map(|k| if (k + b) % 4 == 0 { 0.8 } else { 0.0 }).collect()).collect();
     let idr: Vec<&[f32]> = ids.iter().map(|v| v.as_slice()).collect();
     let exr: Vec<&[f32]> = exs.iter().map(|v| v.as_slice()).collect();
     for extent in [Extent::Face, Extent::Full] {
         let batch = m.shape_batch(&idr, &exr, extent).unwrap();
         for b in 0..5 {
             let one = m.shape(&ids[b], &exs[b], extent).unwrap();
-            let err = one
-                .iter()
-                .flatten()
-                .zip(batch[b].iter().flatten())
-                .map(|(x, y)| (x - y).abs())
-                .fold(0.0, f32::max);
+            let err =
+                one.iter().flatten().zip(batch[b].iter().flatten()).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max);
             assert!(err < 1e-3, "face {b}: {err} mm (summation order differs)");
         }
     }
@@ -357,18 +267,9 @@ fn instance_into_reuses_a_mesh_and_equals_instance() {
         c.identity[step] = 0.5;
         c.expression[10 + step] = 0.3;
         c.albedo[step] = 1.0;
-        let extent = if step == 1 {
-            Extent::Full
-        } else {
-            Extent::Face
-        };
+        let extent = if step == 1 { Extent::Full } else { Extent::Face };
         m.instance_into(&c, extent, &mut mesh).unwrap();
-        let fresh = if step == 1 {
-            m.instance_full(&c)
-        } else {
-            m.instance(&c)
-        }
-        .unwrap();
+        let fresh = if step == 1 { m.instance_full(&c) } else { m.instance(&c) }.unwrap();
         assert!(mesh == fresh, "step {step}");
     }
 }
@@ -383,19 +284,13 @@ fn face_area_evaluation_stays_within_its_stated_bound_of_the_f32_sum() {
     let nf = m.face_vertex_count();
     let mut state = 4242u64;
     let mut rnd = || {
-        state = state
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
+        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
         (state >> 11) as f32 / (1u64 << 53) as f32
     };
     let mut worst = (0.0f32, 0.0f32);
     for trial in 0..4 {
         let (id, ex, tex): (Vec<f32>, Vec<f32>, Vec<f32>) = if trial == 0 {
-            (
-                vec![3.0; l.identity],
-                vec![1.0; l.expression],
-                vec![3.0; l.albedo],
-            )
+            (vec![3.0; l.identity], vec![1.0; l.expression], vec![3.0; l.albedo])
         } else {
             (
                 (0..l.identity).map(|_| 6.0 * rnd() - 3.0).collect(),
@@ -407,10 +302,7 @@ fn face_area_evaluation_stays_within_its_stated_bound_of_the_f32_sum() {
         let alb = m.albedo(&tex, Extent::Face).unwrap();
         let (sb, ab) = (m.shape_error_bound(&id, &ex), m.albedo_error_bound(&tex));
         // The stated figures (docs/decisions/0102-quantized-face-bases.md).
-        assert!(
-            sb < SHAPE_BOUND_MM && ab < ALBEDO_BOUND,
-            "bounds {sb} mm, {ab}"
-        );
+        assert!(sb < SHAPE_BOUND_MM && ab < ALBEDO_BOUND, "bounds {sb} mm, {ab}");
         let (mut es, mut ea) = (0.0f32, 0.0f32);
         for v in 0..nf {
             for c in 0..3 {
@@ -420,18 +312,10 @@ fn face_area_evaluation_stays_within_its_stated_bound_of_the_f32_sum() {
             }
         }
         // f32 rounding of the sums (what the f32 path has too): under 1 µm, 1e-5.
-        assert!(
-            es <= sb + 1e-3,
-            "trial {trial}: shape off by {es} mm, bound {sb}"
-        );
-        assert!(
-            ea <= ab + 1e-5,
-            "trial {trial}: albedo off by {ea}, bound {ab}"
-        );
+        assert!(es <= sb + 1e-3, "trial {trial}: shape off by {es} mm, bound {sb}");
+        assert!(ea <= ab + 1e-5, "trial {trial}: albedo off by {ea}, bound {ab}");
         worst = (worst.0.max(es), worst.1.max(ea));
-        println!(
-            "trial {trial}: shape max |Δ| {es:.2e} mm (bound {sb:.2e}), albedo {ea:.2e} (bound {ab:.2e})"
-        );
+        println!("trial {trial}: shape max |Δ| {es:.2e} mm (bound {sb:.2e}), albedo {ea:.2e} (bound {ab:.2e})");
     }
     // The quantisation is visible at all (the test compares two different evaluations).
     assert!(worst.0 > 0.0 && worst.1 > 0.0);

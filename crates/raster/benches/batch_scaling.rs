@@ -31,11 +31,7 @@ fn main() {
             return;
         }
     };
-    println!(
-        "adapter: {} ({:?})",
-        r.adapter_info().name,
-        r.adapter_info().device_type
-    );
+    println!("adapter: {} ({:?})", r.adapter_info().name, r.adapter_info().device_type);
     for b in [Batching::Atlas, Batching::Layers] {
         r.set_batching(b);
         for n in [1usize, 2, 4, 8, 16, 32] {
@@ -47,10 +43,7 @@ fn main() {
                 r.render(&jobs[..n]).unwrap();
             }
             let wall = t.elapsed().as_secs_f64() * 1000.0 / reps as f64;
-            let cpu = cpu_ms()
-                .zip(c0)
-                .map(|(a, b)| (a - b) / reps as f64)
-                .unwrap_or(f64::NAN);
+            let cpu = cpu_ms().zip(c0).map(|(a, b)| (a - b) / reps as f64).unwrap_or(f64::NAN);
             println!(
                 "{b:?} batch {n:2}: wall {wall:7.1} ms/call {:6.2} ms/face | process CPU {cpu:7.1} ms/call {:6.2} ms/face",
                 wall / n as f64,

@@ -20,12 +20,8 @@ fn benches(c: &mut Criterion) {
 
     let mut g = c.benchmark_group("raster");
     g.sample_size(20);
-    g.bench_function("cpu_rasterize_224", |b| {
-        b.iter(|| cpu::rasterize(black_box(&jobs[7])).unwrap())
-    });
-    g.bench_function("cpu_render_224", |b| {
-        b.iter(|| cpu::render(black_box(&jobs[7])).unwrap())
-    });
+    g.bench_function("cpu_rasterize_224", |b| b.iter(|| cpu::rasterize(black_box(&jobs[7])).unwrap()));
+    g.bench_function("cpu_render_224", |b| b.iter(|| cpu::render(black_box(&jobs[7])).unwrap()));
     g.bench_function("normals_and_shading", |b| {
         b.iter(|| {
             let n = vertex_normals(black_box(&posed[7].positions), &face.triangles);
@@ -48,16 +44,10 @@ fn benches(c: &mut Criterion) {
                 g.bench_function(format!("gpu_single_224_{tag}"), |b| {
                     b.iter(|| r.render(black_box(&jobs[7..8])).unwrap())
                 });
-                g.bench_function(format!("gpu_batch32_224_{tag}"), |b| {
-                    b.iter(|| r.render(black_box(&jobs)).unwrap())
-                });
+                g.bench_function(format!("gpu_batch32_224_{tag}"), |b| b.iter(|| r.render(black_box(&jobs)).unwrap()));
                 // The same 32 faces, one submission each: what batching saves.
                 g.bench_function(format!("gpu_32_singles_224_{tag}"), |b| {
-                    b.iter(|| {
-                        jobs.chunks(1)
-                            .map(|j| r.render(black_box(j)).unwrap().len())
-                            .sum::<usize>()
-                    })
+                    b.iter(|| jobs.chunks(1).map(|j| r.render(black_box(j)).unwrap().len()).sum::<usize>())
                 });
             }
         }

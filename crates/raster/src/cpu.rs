@@ -68,10 +68,7 @@ pub fn rasterize(job: &RenderJob) -> Result<VisibilityBuffer, RenderError> {
         let v: [ClipVert; 3] = std::array::from_fn(|k| {
             let mut b = [0.0; 3];
             b[k] = 1.0;
-            ClipVert {
-                c: clip[t[k] as usize].map(|x| x as f64),
-                b,
-            }
+            ClipVert { c: clip[t[k] as usize].map(|x| x as f64), b }
         });
         if v.iter().all(|x| inside(&x.c)) {
             raster_triangle(&mut vb, &mut zbuf, job, id as u32, &v);
@@ -89,55 +86,24 @@ pub fn rasterize(job: &RenderJob) -> Result<VisibilityBuffer, RenderError> {
     Ok(vb)
 }
 
-fn raster_triangle(
-    vb: &mut VisibilityBuffer,
-    zbuf: &mut [f64],
-    job: &RenderJob,
-    id: u32,
-    v: &[ClipVert; 3],
-) {
+fn raster_triangle(vb: &mut VisibilityBuffer, zbuf: &mut [f64], job: &RenderJob, id: u32, v: &[ClipVert; 3]) {
     let (wf, hf) = (vb.width as f64, vb.height as f64);
     // Screen positions in the pixel convention (centres at integers), NDC depth, 1/w.
     let s: [[f64; 2]; 3] = std::array::from_fn(|k| {
         let c = &v[k].c;
-        [
-            (c[0] / c[3] + 1.0) * 0.5 * wf - 0.5,
-            (1.0 - c[1] / c[3]) * 0.5 * hf - 0.5,
-        ]
+        [(c[0] / c[3] + 1.0) * 0.5 * wf - 0.5, (1.0 - c[1] / c[3]) * 0.5 * hf - 0.5]
     });
     let zn: [f64; 3] = std::array::from_fn(|k| v[k].c[2] / v[k].c[3]);
     let iw: [f64; 3] = std::array::from_fn(|k| 1.0 / v[k].c[3]);
-    let edge = |a: [f64; 2], b: [f64; 2], p: [f64; 2]| {
-        (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0])
-    };
+    let edge = |a: [f64; 2], b: [f64; 2], p: [f64; 2]| (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0]);
     let area = edge(s[0], s[1], s[2]);
     if area == 0.0 || !area.is_finite() {
         return;
     }
-    let x0 = s
-        .iter()
-        .map(|p| p[0])
-        .fold(f64::INFINITY, f64::min)
-        .ceil()
-        .max(0.0);
-    let x1 = s
-        .iter()
-        .map(|p| p[0])
-        .fold(f64::NEG_INFINITY, f64::max)
-        .floor()
-        .min(wf - 1.0);
-    let y0 = s
-        .iter()
-        .map(|p| p[1])
-        .fold(f64::INFINITY, f64::min)
-        .ceil()
-        .max(0.0);
-    let y1 = s
-        .iter()
-        .map(|p| p[1])
-        .fold(f64::NEG_INFINITY, f64::max)
-        .floor()
-        .min(hf - 1.0);
+    let x0 = s.iter().map(|p| p[0]).fold(f64::INFINITY, f64::min).ceil().max(0.0);
+    let x1 = s.iter().map(|p| p[0]).fold(f64::NEG_INFINITY, f64::max).floor().min(wf - 1.0);
+    let y0 = s.iter().map(|p| p[1]).fold(f64::INFINITY, f64::min).ceil().max(0.0);
+    let y1 = s.iter().map(|p| p[1]).fold(f64::NEG_INFINITY, f64::max).floor().min(hf - 1.0);
     if x0 > x1 || y0 > y1 {
         return;
     }
@@ -147,11 +113,7 @@ fn raster_triangle(
         for x in x0 as u32..=x1 as u32 {
             let p = [x as f64, y as f64];
             // Screen-space barycentrics of the (sub-)triangle's corners.
-            let l = [
-                edge(s[1], s[2], p) / area,
-                edge(s[2], s[0], p) / area,
-                edge(s[0], s[1], p) / area,
-            ];
+            let l = [edge(s[1], s[2], p) / area, edge(s[2], s[0], p) / area, edge(s[0], s[1], p) / area];
             if l.iter().any(|&e| e < 0.0) {
                 continue;
             }
@@ -183,21 +145,13 @@ pub fn resolve(job: &RenderJob, vb: VisibilityBuffer) -> Result<Frame, RenderErr
     job.validate(0)?;
     let n = vb.triangle.len();
     let px = job.pixel_count();
-    if (vb.width, vb.height) != (job.width, job.height)
-        || n != px
-        || vb.bary.len() != px
-        || vb.depth.len() != px
-    {
+    if (vb.width, vb.height) != (job.width, job.height) || n != px || vb.bary.len() != px || vb.depth.len() != px {
         return Err(RenderError::SizeMismatch(format!(
             "visibility buffer {}×{} ({n} ids) for a {}×{} job",
             vb.width, vb.height, job.width, job.height
         )));
     }
-    if let Some(&t) = vb
-        .triangle
-        .iter()
-        .find(|&&t| t != BACKGROUND && t as usize >= job.triangles.len())
-    {
+    if let Some(&t) = vb.triangle.iter().find(|&&t| t != BACKGROUND && t as usize >= job.triangles.len()) {
         return Err(RenderError::InvalidArgument(format!(
             "visibility buffer names triangle {t}, the job has {}",
             job.triangles.len()
@@ -227,11 +181,7 @@ pub fn resolve(job: &RenderJob, vb: VisibilityBuffer) -> Result<Frame, RenderErr
         let nv = glam::Vec3::from(interp(job.normals));
         normal[i] = nv.normalize_or_zero().to_array();
     }
-    Ok(Frame {
-        visibility: vb,
-        color,
-        normal,
-    })
+    Ok(Frame { visibility: vb, color, normal })
 }
 
 /// `floor(0.5 + 255·clamp(c, 0, 1))`, WGSL's `pack4x8unorm` per channel.

@@ -23,11 +23,7 @@ impl Frame {
 
     /// Foreground mask, one bool per pixel.
     pub fn mask(&self) -> Vec<bool> {
-        self.visibility
-            .triangle
-            .iter()
-            .map(|&t| t != BACKGROUND)
-            .collect()
+        self.visibility.triangle.iter().map(|&t| t != BACKGROUND).collect()
     }
 
     /// Depth map: camera-space distance in mm (0 on the background).
@@ -36,24 +32,14 @@ impl Frame {
     }
 
     pub fn color_image(&self) -> RgbaImage {
-        RgbaImage::from_raw(
-            self.width(),
-            self.height(),
-            self.color.iter().flatten().copied().collect(),
-        )
-        .expect("frame buffers have width·height entries")
+        RgbaImage::from_raw(self.width(), self.height(), self.color.iter().flatten().copied().collect())
+            .expect("frame buffers have width·height entries")
     }
 
     /// Mask as an 8-bit image (255 = foreground).
     pub fn mask_image(&self) -> GrayImage {
-        let px = self
-            .visibility
-            .triangle
-            .iter()
-            .map(|&t| if t != BACKGROUND { 255 } else { 0 })
-            .collect();
-        GrayImage::from_raw(self.width(), self.height(), px)
-            .expect("frame buffers have width·height entries")
+        let px = self.visibility.triangle.iter().map(|&t| if t != BACKGROUND { 255 } else { 0 }).collect();
+        GrayImage::from_raw(self.width(), self.height(), px).expect("frame buffers have width·height entries")
     }
 
     /// Normal map as an image: `(n + 1)/2` per channel; black on the background.
@@ -66,7 +52,6 @@ impl Frame {
                 px.extend(n.iter().map(|c| crate::cpu::unorm8((c + 1.0) * 0.5)));
             }
         }
-        RgbImage::from_raw(self.width(), self.height(), px)
-            .expect("frame buffers have width·height entries")
+        RgbImage::from_raw(self.width(), self.height(), px).expect("frame buffers have width·height entries")
     }
 }

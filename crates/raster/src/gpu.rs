@@ -76,11 +76,7 @@ struct GrowBuffer {
 
 impl GrowBuffer {
     fn new(label: &'static str, usage: wgpu::BufferUsages) -> Self {
-        Self {
-            label,
-            usage,
-            buffer: None,
-        }
+        Self { label, usage, buffer: None }
     }
     /// Makes the buffer at least `size` bytes; true when it was (re)created.
     /// Capacity is rounded up to a power of two, but never past `max` (or `size`).
@@ -120,11 +116,7 @@ impl Targets {
         let make = |label, format, usage| {
             device.create_texture(&wgpu::TextureDescriptor {
                 label: Some(label),
-                size: wgpu::Extent3d {
-                    width,
-                    height,
-                    depth_or_array_layers: layers,
-                },
+                size: wgpu::Extent3d { width, height, depth_or_array_layers: layers },
                 mip_level_count: 1,
                 sample_count: 1,
                 dimension: wgpu::TextureDimension::D2,
@@ -136,11 +128,7 @@ impl Targets {
         let rt = wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING;
         let id = make("visibility id", wgpu::TextureFormat::R32Uint, rt);
         let bary = make("visibility bary", wgpu::TextureFormat::Rg32Float, rt);
-        let depth = make(
-            "visibility depth",
-            wgpu::TextureFormat::Depth32Float,
-            wgpu::TextureUsages::RENDER_ATTACHMENT,
-        );
+        let depth = make("visibility depth", wgpu::TextureFormat::Depth32Float, wgpu::TextureUsages::RENDER_ATTACHMENT);
         let layer_views = |t: &wgpu::Texture| {
             (0..layers)
                 .map(|l| {
@@ -202,23 +190,13 @@ fn select_adapter(adapters: Vec<wgpu::Adapter>) -> Result<wgpu::Adapter, RenderE
         return adapters
             .into_iter()
             .find(|a| a.get_info().name.to_lowercase().contains(&want))
-            .ok_or_else(|| {
-                RenderError::NoAdapter(format!(
-                    "WGPU_ADAPTER_NAME={want} matches none of {names:?}"
-                ))
-            });
+            .ok_or_else(|| RenderError::NoAdapter(format!("WGPU_ADAPTER_NAME={want} matches none of {names:?}")));
     }
     let mut adapters = adapters;
-    if let Some(i) = adapters
-        .iter()
-        .position(|a| a.get_info().device_type != wgpu::DeviceType::Cpu)
-    {
+    if let Some(i) = adapters.iter().position(|a| a.get_info().device_type != wgpu::DeviceType::Cpu) {
         return Ok(adapters.swap_remove(i));
     }
-    adapters
-        .into_iter()
-        .next()
-        .ok_or_else(|| RenderError::NoAdapter("Vulkan reports no adapter".into()))
+    adapters.into_iter().next().ok_or_else(|| RenderError::NoAdapter("Vulkan reports no adapter".into()))
 }
 
 impl Renderer {
@@ -303,10 +281,7 @@ impl Renderer {
                 module: &vis_module,
                 entry_point: Some("fs_main"),
                 compilation_options: Default::default(),
-                targets: &[
-                    Some(wgpu::TextureFormat::R32Uint.into()),
-                    Some(wgpu::TextureFormat::Rg32Float.into()),
-                ],
+                targets: &[Some(wgpu::TextureFormat::R32Uint.into()), Some(wgpu::TextureFormat::Rg32Float.into())],
             }),
             multiview_mask: None,
             cache: None,
@@ -403,10 +378,7 @@ impl Renderer {
             if j.width > max_side || j.height > max_side {
                 return Err(RenderError::InvalidJob {
                     job: i,
-                    message: format!(
-                        "{}×{} exceeds the device's {max_side}-pixel textures",
-                        j.width, j.height
-                    ),
+                    message: format!("{}×{} exceeds the device's {max_side}-pixel textures", j.width, j.height),
                 });
             }
         }
@@ -446,10 +418,7 @@ impl Renderer {
     }
 
     fn max_buffer_bytes(&self) -> u64 {
-        self.limits
-            .max_storage_buffer_binding_size
-            .min(self.limits.max_buffer_size)
-            .min(MAX_BATCH_BYTES)
+        self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size).min(MAX_BATCH_BYTES)
     }
 
     /// Tiles of a chunk: (columns, rows, layers).
@@ -465,11 +434,7 @@ impl Renderer {
         }
     }
 
-    fn render_chunk(
-        &mut self,
-        jobs: &[RenderJob],
-        first: usize,
-    ) -> Result<Vec<Frame>, RenderError> {
+    fn render_chunk(&mut self, jobs: &[RenderJob], first: usize) -> Result<Vec<Frame>, RenderError> {
         let n = jobs.len() as u32;
         let tile_w = jobs.iter().map(|j| j.width).max().unwrap_or(1);
         let tile_h = jobs.iter().map(|j| j.height).max().unwrap_or(1);
@@ -543,18 +508,10 @@ impl Renderer {
             self.targets = Some(Targets::new(&self.device, need_w, need_h, layers));
         }
         let mut grew = grow_targets;
-        grew |= self
-            .clip_buf
-            .ensure(&self.device, (clip.len() * 16) as u64, max_bytes);
-        grew |= self
-            .tri_buf
-            .ensure(&self.device, (tris.len() * 4) as u64, max_bytes);
-        grew |= self
-            .vert_buf
-            .ensure(&self.device, (verts.len() * 4) as u64, max_bytes);
-        grew |= self
-            .job_buf
-            .ensure(&self.device, (gjobs.len() * 32) as u64, max_bytes);
+        grew |= self.clip_buf.ensure(&self.device, (clip.len() * 16) as u64, max_bytes);
+        grew |= self.tri_buf.ensure(&self.device, (tris.len() * 4) as u64, max_bytes);
+        grew |= self.vert_buf.ensure(&self.device, (verts.len() * 4) as u64, max_bytes);
+        grew |= self.job_buf.ensure(&self.device, (gjobs.len() * 32) as u64, max_bytes);
         grew |= self.pixel_buf.ensure(&self.device, out_bytes, max_bytes);
         self.readback.ensure(&self.device, out_bytes, max_bytes);
         if grew || self.bind_group.is_none() {
@@ -563,52 +520,26 @@ impl Renderer {
                 label: Some("resolve"),
                 layout: &self.resolve_layout,
                 entries: &[
-                    wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: wgpu::BindingResource::TextureView(&t.id_array),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 1,
-                        resource: wgpu::BindingResource::TextureView(&t.bary_array),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 2,
-                        resource: self.job_buf.get().as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 3,
-                        resource: self.tri_buf.get().as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 4,
-                        resource: self.vert_buf.get().as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 5,
-                        resource: self.pixel_buf.get().as_entire_binding(),
-                    },
+                    wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(&t.id_array) },
+                    wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&t.bary_array) },
+                    wgpu::BindGroupEntry { binding: 2, resource: self.job_buf.get().as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 3, resource: self.tri_buf.get().as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 4, resource: self.vert_buf.get().as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 5, resource: self.pixel_buf.get().as_entire_binding() },
                 ],
             }));
         }
         if !clip.is_empty() {
-            self.queue
-                .write_buffer(self.clip_buf.get(), 0, bytemuck::cast_slice(&clip));
-            self.queue
-                .write_buffer(self.tri_buf.get(), 0, bytemuck::cast_slice(&tris));
+            self.queue.write_buffer(self.clip_buf.get(), 0, bytemuck::cast_slice(&clip));
+            self.queue.write_buffer(self.tri_buf.get(), 0, bytemuck::cast_slice(&tris));
         }
         if !verts.is_empty() {
-            self.queue
-                .write_buffer(self.vert_buf.get(), 0, bytemuck::cast_slice(&verts));
+            self.queue.write_buffer(self.vert_buf.get(), 0, bytemuck::cast_slice(&verts));
         }
-        self.queue
-            .write_buffer(self.job_buf.get(), 0, bytemuck::cast_slice(&gjobs));
+        self.queue.write_buffer(self.job_buf.get(), 0, bytemuck::cast_slice(&gjobs));
 
         let t = self.targets.as_ref().expect("targets exist");
-        let mut enc = self
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("render"),
-            });
+        let mut enc = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("render") });
         let mut first_vertex = 0u32;
         let mut k = 0usize;
         for layer in 0..layers {
@@ -636,10 +567,7 @@ impl Renderer {
                 ],
                 depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
                     view: &t.depth_layers[layer as usize],
-                    depth_ops: Some(wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(1.0),
-                        store: wgpu::StoreOp::Discard,
-                    }),
+                    depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(1.0), store: wgpu::StoreOp::Discard }),
                     stencil_ops: None,
                 }),
                 ..Default::default()
@@ -650,14 +578,7 @@ impl Renderer {
                 let (j, g) = (&jobs[k], &gjobs[k]);
                 let count = j.triangles.len() as u32 * 3;
                 if count > 0 {
-                    pass.set_viewport(
-                        g.ox as f32,
-                        g.oy as f32,
-                        j.width as f32,
-                        j.height as f32,
-                        0.0,
-                        1.0,
-                    );
+                    pass.set_viewport(g.ox as f32, g.oy as f32, j.width as f32, j.height as f32, 0.0, 1.0);
                     pass.set_scissor_rect(g.ox, g.oy, j.width, j.height);
                     pass.draw(first_vertex..first_vertex + count, 0..1);
                 }
@@ -666,10 +587,8 @@ impl Renderer {
             }
         }
         {
-            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("resolve"),
-                timestamp_writes: None,
-            });
+            let mut pass =
+                enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("resolve"), timestamp_writes: None });
             pass.set_pipeline(&self.resolve_pipeline);
             pass.set_bind_group(0, self.bind_group.as_ref(), &[]);
             pass.dispatch_workgroups(tile_w.div_ceil(8), tile_h.div_ceil(8), n);
@@ -686,11 +605,7 @@ impl Renderer {
         let polled = self.device.poll(wgpu::PollType::wait_indefinitely());
         let val = pollster::block_on(scope_val.pop());
         let oom = pollster::block_on(scope_oom.pop());
-        let uncaptured: Vec<String> = self
-            .uncaptured
-            .lock()
-            .map(|mut v| std::mem::take(&mut *v))
-            .unwrap_or_default();
+        let uncaptured: Vec<String> = self.uncaptured.lock().map(|mut v| std::mem::take(&mut *v)).unwrap_or_default();
         let mapped = rx.try_recv();
         let fail = |msg: String| {
             if matches!(mapped, Ok(Ok(()))) {
@@ -714,15 +629,12 @@ impl Renderer {
         }
 
         let frames = {
-            let view = slice
-                .get_mapped_range()
-                .map_err(|e| RenderError::Gpu(format!("reading back: {e}")))?;
+            let view = slice.get_mapped_range().map_err(|e| RenderError::Gpu(format!("reading back: {e}")))?;
             let pixels: &[GpuPixel] = bytemuck::cast_slice(&view);
             jobs.iter()
                 .zip(&gjobs)
                 .map(|(j, g)| {
-                    let px =
-                        &pixels[g.out_offset as usize..g.out_offset as usize + j.pixel_count()];
+                    let px = &pixels[g.out_offset as usize..g.out_offset as usize + j.pixel_count()];
                     let mut vb = VisibilityBuffer::new(j.width, j.height);
                     let mut color = vec![[0u8; 4]; px.len()];
                     let mut normal = vec![[0f32; 3]; px.len()];
@@ -735,11 +647,7 @@ impl Renderer {
                             normal[i] = p.n;
                         }
                     }
-                    Frame {
-                        visibility: vb,
-                        color,
-                        normal,
-                    }
+                    Frame { visibility: vb, color, normal }
                 })
                 .collect()
         };

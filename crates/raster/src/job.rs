@@ -33,36 +33,19 @@ impl RenderJob<'_> {
     pub fn validate(&self, job: usize) -> Result<(), RenderError> {
         let bad = |message: String| Err(RenderError::InvalidJob { job, message });
         if self.width == 0 || self.height == 0 || self.width > MAX_SIDE || self.height > MAX_SIDE {
-            return bad(format!(
-                "output size {}×{} outside 1..={MAX_SIDE} per side",
-                self.width, self.height
-            ));
+            return bad(format!("output size {}×{} outside 1..={MAX_SIDE} per side", self.width, self.height));
         }
         let n = self.positions.len();
         if n > MAX_ELEMENTS || self.triangles.len() > MAX_ELEMENTS {
-            return bad(format!(
-                "{n} vertices / {} triangles: more than {MAX_ELEMENTS}",
-                self.triangles.len()
-            ));
+            return bad(format!("{n} vertices / {} triangles: more than {MAX_ELEMENTS}", self.triangles.len()));
         }
         if self.colors.len() != n || self.normals.len() != n {
-            return bad(format!(
-                "{n} positions but {} colours and {} normals",
-                self.colors.len(),
-                self.normals.len()
-            ));
+            return bad(format!("{n} positions but {} colours and {} normals", self.colors.len(), self.normals.len()));
         }
         if let Some(t) = facerecon_model::scene::validate_triangles(n, self.triangles) {
-            return bad(format!(
-                "triangle {t} {:?} refers to a vertex ≥ {n}",
-                self.triangles[t]
-            ));
+            return bad(format!("triangle {t} {:?} refers to a vertex ≥ {n}", self.triangles[t]));
         }
-        for (name, data) in [
-            ("position", self.positions),
-            ("colour", self.colors),
-            ("normal", self.normals),
-        ] {
+        for (name, data) in [("position", self.positions), ("colour", self.colors), ("normal", self.normals)] {
             if let Some(i) = data.iter().position(|p| p.iter().any(|c| !c.is_finite())) {
                 return bad(format!("{name} {i} is not finite: {:?}", data[i]));
             }
@@ -73,9 +56,7 @@ impl RenderJob<'_> {
             && c.aspect > 0.0
             && c.near > 0.0
             && c.far > c.near
-            && [c.fov_y, c.aspect, c.near, c.far]
-                .iter()
-                .all(|v| v.is_finite());
+            && [c.fov_y, c.aspect, c.near, c.far].iter().all(|v| v.is_finite());
         if !ok {
             return bad(format!("invalid camera {c:?}"));
         }
@@ -91,8 +72,5 @@ impl RenderJob<'_> {
 /// producer rasterises.
 pub fn clip_positions(job: &RenderJob) -> Vec<[f32; 4]> {
     let m = job.camera.projection_zo();
-    job.positions
-        .iter()
-        .map(|p| (m * glam::Vec3::from(*p).extend(1.0)).to_array())
-        .collect()
+    job.positions.iter().map(|p| (m * glam::Vec3::from(*p).extend(1.0)).to_array()).collect()
 }

@@ -16,9 +16,7 @@ pub fn overlay(photo: &RgbImage, frame: &Frame, opacity: f32) -> Result<RgbImage
         )));
     }
     if !(0.0..=1.0).contains(&opacity) {
-        return Err(RenderError::InvalidArgument(format!(
-            "opacity {opacity} outside [0, 1]"
-        )));
+        return Err(RenderError::InvalidArgument(format!("opacity {opacity} outside [0, 1]")));
     }
     let mut out = photo.clone();
     for (i, px) in out.pixels_mut().enumerate() {

@@ -23,13 +23,7 @@ impl VisibilityBuffer {
     /// An all-background buffer.
     pub fn new(width: u32, height: u32) -> Self {
         let n = width as usize * height as usize;
-        Self {
-            width,
-            height,
-            triangle: vec![BACKGROUND; n],
-            bary: vec![[0.0; 2]; n],
-            depth: vec![0.0; n],
-        }
+        Self { width, height, triangle: vec![BACKGROUND; n], bary: vec![[0.0; 2]; n], depth: vec![0.0; n] }
     }
 
     /// Index of pixel `(x, y)`.

@@ -16,18 +16,9 @@ fn cpu_matches_oracle_on_random_occluding_meshes() {
         let o = oracle(&job);
         let vb = cpu::rasterize(&job).unwrap();
         let (bad, max_bary, compared) = compare(&job, &o, &vb, 1e-6, 1e-9);
-        assert!(
-            compared > 48 * 40 * 9 / 10,
-            "seed {seed}: only {compared} decisive pixels"
-        );
-        assert!(
-            o.vb.coverage() > 200,
-            "seed {seed}: test scene covers too little"
-        );
-        assert!(
-            max_bary < 1e-5,
-            "seed {seed}: barycentrics differ by {max_bary}"
-        );
+        assert!(compared > 48 * 40 * 9 / 10, "seed {seed}: only {compared} decisive pixels");
+        assert!(o.vb.coverage() > 200, "seed {seed}: test scene covers too little");
+        assert!(max_bary < 1e-5, "seed {seed}: barycentrics differ by {max_bary}");
         total_bad += bad.len();
         // Depth agrees where ids agree.
         for i in 0..vb.triangle.len() {
@@ -35,12 +26,7 @@ fn cpu_matches_oracle_on_random_occluding_meshes() {
                 assert!((vb.depth[i] - o.vb.depth[i]).abs() < 1e-3 * o.vb.depth[i].abs().max(1.0));
             }
         }
-        assert!(
-            bad.is_empty(),
-            "seed {seed}: {} pixels disagree, e.g. {:?}",
-            bad.len(),
-            &bad[..bad.len().min(5)]
-        );
+        assert!(bad.is_empty(), "seed {seed}: {} pixels disagree, e.g. {:?}", bad.len(), &bad[..bad.len().min(5)]);
     }
     assert_eq!(total_bad, 0);
 }
@@ -54,12 +40,7 @@ fn cpu_matches_oracle_on_a_self_occluding_dome() {
     let vb = cpu::rasterize(&job).unwrap();
     let (bad, max_bary, compared) = compare(&job, &o, &vb, 1e-6, 1e-9);
     assert!(compared > 64 * 64 * 9 / 10);
-    assert!(
-        bad.is_empty(),
-        "{} pixels disagree: {:?}",
-        bad.len(),
-        &bad[..bad.len().min(5)]
-    );
+    assert!(bad.is_empty(), "{} pixels disagree: {:?}", bad.len(), &bad[..bad.len().min(5)]);
     assert!(max_bary < 1e-5, "{max_bary}");
 }
 
@@ -70,74 +51,28 @@ fn bad_input_is_an_error_not_a_panic() {
     assert!(cpu::rasterize(&ok).is_ok());
     let check = |job: RenderJob, what: &str| match cpu::rasterize(&job) {
         Err(RenderError::InvalidJob { message, .. }) => {
-            assert!(
-                message.contains(what),
-                "{message:?} should mention {what:?}"
-            )
+            assert!(message.contains(what), "{message:?} should mention {what:?}")
         }
         other => panic!("expected InvalidJob for {what}, got {other:?}"),
     };
     check(RenderJob { width: 0, ..ok }, "output size");
-    check(
-        RenderJob {
-            height: 100_000,
-            ..ok
-        },
-        "output size",
-    );
+    check(RenderJob { height: 100_000, ..ok }, "output size");
     let mut nan = s.positions.clone();
     nan[1][2] = f32::NAN;
-    check(
-        RenderJob {
-            positions: &nan,
-            ..ok
-        },
-        "not finite",
-    );
+    check(RenderJob { positions: &nan, ..ok }, "not finite");
     let tris = vec![[0, 1, 99]];
-    check(
-        RenderJob {
-            triangles: &tris,
-            ..ok
-        },
-        "refers to a vertex",
-    );
-    check(
-        RenderJob {
-            colors: &s.colors[..3],
-            ..ok
-        },
-        "colours",
-    );
-    check(
-        RenderJob {
-            camera: Camera {
-                near: 0.0,
-                ..Camera::default()
-            },
-            ..ok
-        },
-        "camera",
-    );
+    check(RenderJob { triangles: &tris, ..ok }, "refers to a vertex");
+    check(RenderJob { colors: &s.colors[..3], ..ok }, "colours");
+    check(RenderJob { camera: Camera { near: 0.0, ..Camera::default() }, ..ok }, "camera");
     // resolve() refuses a visibility buffer of another job.
     let vb = cpu::rasterize(&ok).unwrap();
-    assert!(matches!(
-        cpu::resolve(&RenderJob { width: 8, ..ok }, vb.clone()),
-        Err(RenderError::SizeMismatch(_))
-    ));
+    assert!(matches!(cpu::resolve(&RenderJob { width: 8, ..ok }, vb.clone()), Err(RenderError::SizeMismatch(_))));
     let mut wrong = vb.clone();
     wrong.triangle[0] = 1000;
-    assert!(matches!(
-        cpu::resolve(&ok, wrong),
-        Err(RenderError::InvalidArgument(_))
-    ));
+    assert!(matches!(cpu::resolve(&ok, wrong), Err(RenderError::InvalidArgument(_))));
     assert!(cpu::resolve(&ok, vb).is_ok());
     // No triangles: all background, not an error.
-    let vb = cpu::rasterize(&RenderJob {
-        triangles: &[],
-        ..ok
-    })
-    .unwrap();
+    let vb = cpu::rasterize(&RenderJob { triangles: &[], ..ok }).unwrap();
     assert_eq!(vb.coverage(), 0);
 }
 
@@ -174,10 +109,7 @@ pub fn sphere_errors(
             if nrm.dot(-d) < 0.25 {
                 continue;
             }
-            assert!(
-                frame.visibility.covered(i),
-                "pixel {x},{y} on the sphere is background"
-            );
+            assert!(frame.visibility.covered(i), "pixel {x},{y} on the sphere is background");
             let s = sh_shading(nrm.as_vec3().to_array(), &light);
             for k in 0..3 {
                 let want = (albedo[k] * s[k]).clamp(0.0, 1.0) as f64 * 255.0;
@@ -213,26 +145,16 @@ fn cpu_shaded_sphere_matches_analytic_sh_shading() {
     let frame = cpu::render(&job).unwrap();
     let (mean, max, ang, dz) = sphere_errors(&frame, r, c, albedo);
     // Gouraud over 64×128 facets: measured mean 0.25, max 0.56 LSB.
-    assert!(
-        mean < 0.5 && max < 1.5,
-        "colour error mean {mean} max {max}"
-    );
+    assert!(mean < 0.5 && max < 1.5, "colour error mean {mean} max {max}");
     assert!(ang < 0.01, "normal angle {ang}");
     // Depth: facets lie inside the sphere by ≲ r(1 − cos(π/64·√2/2·2)) ≈ 0.07 mm along the
     // normal, measured along the ray at ≥ 75.5° incidence: ≤ 0.3 mm.
-    eprintln!(
-        "sphere: colour mean {mean:.3} max {max:.3} LSB, normal {ang:.5} rad, depth {dz:.4} mm"
-    );
+    eprintln!("sphere: colour mean {mean:.3} max {max:.3} LSB, normal {ang:.5} rad, depth {dz:.4} mm");
     assert!(dz < 0.3, "depth error {dz}");
     // Area-weighted normals of the mesh give the same picture.
     let n2 = vertex_normals(&p, &t);
     let colors2 = shade(&vec![albedo; p.len()], &n2, &test_light());
-    let frame2 = cpu::render(&RenderJob {
-        colors: &colors2,
-        normals: &n2,
-        ..job
-    })
-    .unwrap();
+    let frame2 = cpu::render(&RenderJob { colors: &colors2, normals: &n2, ..job }).unwrap();
     let (mean2, _, _, _) = sphere_errors(&frame2, r, c, albedo);
     assert!(mean2 < 1.0, "{mean2}");
 }
@@ -242,8 +164,7 @@ fn overlay_blends_only_inside_the_mask() {
     let s = dome(12, 0.0, 1);
     let job = s.job(32, 32);
     let frame = cpu::render(&job).unwrap();
-    let photo =
-        image::RgbImage::from_fn(32, 32, |x, y| image::Rgb([x as u8 * 7, y as u8 * 7, 100]));
+    let photo = image::RgbImage::from_fn(32, 32, |x, y| image::Rgb([x as u8 * 7, y as u8 * 7, 100]));
     let out = overlay(&photo, &frame, 0.25).unwrap();
     let mut inside = 0;
     for (i, (a, b)) in photo.pixels().zip(out.pixels()).enumerate() {

@@ -20,18 +20,13 @@ fn gpu_matches_cpu_and_oracle() {
     let mut r = renderer(Batching::Layers);
     eprintln!("adapter: {:?}", r.adapter_info());
     // Random occluding triangles, some crossing the near plane: against the oracle.
-    let scenes: Vec<_> = (1..=3u64)
-        .map(|s| random_triangles(100 + s, 40, s == 2))
-        .collect();
+    let scenes: Vec<_> = (1..=3u64).map(|s| random_triangles(100 + s, 40, s == 2)).collect();
     let jobs: Vec<_> = scenes.iter().map(|s| s.job(48, 40)).collect();
     let frames = r.render(&jobs).unwrap();
     for (k, (job, f)) in jobs.iter().zip(&frames).enumerate() {
         let o = oracle(job);
         let (bad, max_bary, compared) = compare(job, &o, &f.visibility, 1e-2, 1e-6);
-        eprintln!(
-            "random {k}: {compared} decisive px, {} disagree, max |Δbary| {max_bary:.2e}",
-            bad.len()
-        );
+        eprintln!("random {k}: {compared} decisive px, {} disagree, max |Δbary| {max_bary:.2e}", bad.len());
         assert!(compared > 48 * 40 * 8 / 10);
         assert!(bad.is_empty(), "scene {k}: {:?}", &bad[..bad.len().min(5)]);
         assert!(max_bary < 1e-4, "scene {k}: {max_bary}");
@@ -41,8 +36,7 @@ fn gpu_matches_cpu_and_oracle() {
     let job = d.job(224, 224);
     let g = r.render(&[job]).unwrap().remove(0);
     let c = cpu::render(&job).unwrap();
-    let (mut differ, mut decisive, mut max_bary, mut max_dz, mut max_rgb, mut max_mm) =
-        (0, 0, 0f32, 0f32, 0u8, 0f32);
+    let (mut differ, mut decisive, mut max_bary, mut max_dz, mut max_rgb, mut max_mm) = (0, 0, 0f32, 0f32, 0u8, 0f32);
     for y in 0..224 {
         for x in 0..224 {
             let i = (y * 224 + x) as usize;
@@ -84,16 +78,10 @@ fn gpu_matches_cpu_and_oracle() {
 
 #[test]
 fn batches_equal_single_renders() {
-    let scenes: Vec<_> = (0..5)
-        .map(|k| dome(40, -0.8 + 0.4 * k as f32, k as u64))
-        .collect();
+    let scenes: Vec<_> = (0..5).map(|k| dome(40, -0.8 + 0.4 * k as f32, k as u64)).collect();
     // Mixed sizes in one batch.
     let sizes = [(64, 64), (80, 48), (64, 64), (33, 71), (64, 64)];
-    let jobs: Vec<_> = scenes
-        .iter()
-        .zip(sizes)
-        .map(|(s, (w, h))| s.job(w, h))
-        .collect();
+    let jobs: Vec<_> = scenes.iter().zip(sizes).map(|(s, (w, h))| s.job(w, h)).collect();
     let (mut max_bary, mut max_mm) = (0f32, 0f32);
     for batching in [Batching::Layers, Batching::Atlas] {
         let mut r = renderer(batching);
@@ -104,10 +92,7 @@ fn batches_equal_single_renders() {
             assert_eq!((b.width(), b.height()), (job.width, job.height));
             match batching {
                 // Same layer, same viewport origin: bit-identical.
-                Batching::Layers => assert!(
-                    single == *b,
-                    "job {k}: layered batch differs from single render"
-                ),
+                Batching::Layers => assert!(single == *b, "job {k}: layered batch differs from single render"),
                 // Tile offsets change the viewport rounding: ids may differ at edge ties only.
                 Batching::Atlas => {
                     for y in 0..job.height {
@@ -118,12 +103,7 @@ fn batches_equal_single_renders() {
                                 let m = margin_of(job, s, x, y).min(margin_of(job, t, x, y));
                                 assert!(m < 1e-2, "job {k} ({x},{y}): {s} vs {t}, margin {m}");
                             } else if s != BACKGROUND {
-                                let (db, dp) = bary_diff(
-                                    job,
-                                    s,
-                                    single.visibility.bary[i],
-                                    b.visibility.bary[i],
-                                );
+                                let (db, dp) = bary_diff(job, s, single.visibility.bary[i], b.visibility.bary[i]);
                                 max_bary = max_bary.max(db);
                                 max_mm = max_mm.max(dp);
                             }
@@ -180,45 +160,21 @@ fn gpu_shaded_sphere_matches_cpu_and_bad_input_is_an_error() {
             }
         }
     }
-    assert!(
-        max_rgb <= 1 && max_n < 1e-4,
-        "rgb {max_rgb}, normal {max_n}"
-    );
+    assert!(max_rgb <= 1 && max_n < 1e-4, "rgb {max_rgb}, normal {max_n}");
     assert!(g.mask().iter().filter(|&&m| m).count() > 1500);
 
     // Bad input: a clear error naming the job, and the renderer keeps working.
     let mut nan = p.clone();
     nan[7][0] = f32::INFINITY;
-    let bad = RenderJob {
-        positions: &nan,
-        ..job
-    };
+    let bad = RenderJob { positions: &nan, ..job };
     match r.render(&[job, bad]) {
         Err(RenderError::InvalidJob { job: 1, message }) => assert!(message.contains("not finite")),
-        other => panic!(
-            "expected InvalidJob for job 1, got {:?}",
-            other.map(|f| f.len())
-        ),
+        other => panic!("expected InvalidJob for job 1, got {:?}", other.map(|f| f.len())),
     }
     let tris = vec![[0, 1, p.len() as u32]];
-    assert!(matches!(
-        r.render(&[RenderJob {
-            triangles: &tris,
-            ..job
-        }]),
-        Err(RenderError::InvalidJob { .. })
-    ));
-    assert!(matches!(
-        r.render(&[RenderJob { width: 0, ..job }]),
-        Err(RenderError::InvalidJob { .. })
-    ));
-    assert!(matches!(
-        r.render(&[RenderJob {
-            width: 1 << 20,
-            ..job
-        }]),
-        Err(RenderError::InvalidJob { .. })
-    ));
+    assert!(matches!(r.render(&[RenderJob { triangles: &tris, ..job }]), Err(RenderError::InvalidJob { .. })));
+    assert!(matches!(r.render(&[RenderJob { width: 0, ..job }]), Err(RenderError::InvalidJob { .. })));
+    assert!(matches!(r.render(&[RenderJob { width: 1 << 20, ..job }]), Err(RenderError::InvalidJob { .. })));
     assert!(r.render(&[]).unwrap().is_empty());
     let again = r.render(&[job]).unwrap().remove(0);
     assert!(again == g);

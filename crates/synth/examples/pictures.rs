@@ -29,7 +29,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 }
 
 fn save(img: &RgbImage, path: &std::path::Path) -> Result<(), Box<dyn std::error::Error>> {
-    let bytes = facerecon_synth::output::png_bytes(img.as_raw(), img.width(), img.height(), image::ExtendedColorType::Rgb8)?;
+    let bytes =
+        facerecon_synth::output::png_bytes(img.as_raw(), img.width(), img.height(), image::ExtendedColorType::Rgb8)?;
     std::fs::write(path, &bytes)?;
     eprintln!("{} ({} KB)", path.display(), bytes.len() / 1024);
     Ok(())
@@ -75,9 +76,24 @@ fn model_sheet(model: &MorphableModel) -> Result<RgbImage, Box<dyn std::error::E
     for e in [
         vec![("jawOpen", 0.8), ("mouthLowerDown_L", 0.3), ("mouthLowerDown_R", 0.3)],
         vec![("mouthSmile_L", 1.0), ("mouthSmile_R", 1.0), ("cheekSquint_L", 0.6), ("cheekSquint_R", 0.6)],
-        vec![("browInnerUp_L", 1.0), ("browInnerUp_R", 1.0), ("browOuterUp_L", 0.8), ("browOuterUp_R", 0.8), ("eyeWide_L", 0.6), ("eyeWide_R", 0.6), ("jawOpen", 0.3)],
+        vec![
+            ("browInnerUp_L", 1.0),
+            ("browInnerUp_R", 1.0),
+            ("browOuterUp_L", 0.8),
+            ("browOuterUp_R", 0.8),
+            ("eyeWide_L", 0.6),
+            ("eyeWide_R", 0.6),
+            ("jawOpen", 0.3),
+        ],
         vec![("eyeBlink_L", 1.0), ("eyeBlink_R", 1.0), ("mouthPucker", 0.9)],
-        vec![("mouthFrown_L", 0.8), ("mouthFrown_R", 0.8), ("browDown_L", 0.9), ("browDown_R", 0.9), ("noseSneer_L", 0.5), ("noseSneer_R", 0.5)],
+        vec![
+            ("mouthFrown_L", 0.8),
+            ("mouthFrown_R", 0.8),
+            ("browDown_L", 0.9),
+            ("browDown_R", 0.9),
+            ("noseSneer_L", 0.5),
+            ("noseSneer_R", 0.5),
+        ],
     ] {
         tiles.push((zero_id.clone(), expr(&e), front));
     }

@@ -28,7 +28,8 @@ struct ValueNoise {
 
 impl ValueNoise {
     fn lattice(&self, x: i64, y: i64) -> f32 {
-        let mut h = self.seed ^ (x as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (y as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+        let mut h =
+            self.seed ^ (x as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (y as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
         h ^= h >> 33;
         h = h.wrapping_mul(0xFF51_AFD7_ED55_8CCD);
         h ^= h >> 33;
@@ -59,11 +60,25 @@ impl ValueNoise {
 }
 
 enum Shape {
-    Disc { c: [f32; 2], r: f32 },
-    Ring { c: [f32; 2], r: f32, w: f32 },
+    Disc {
+        c: [f32; 2],
+        r: f32,
+    },
+    Ring {
+        c: [f32; 2],
+        r: f32,
+        w: f32,
+    },
     /// Rotated rectangle: centre, half sizes, direction of the first axis.
-    Rect { c: [f32; 2], h: [f32; 2], dir: [f32; 2] },
-    Stripes { period: f32, dir: [f32; 2] },
+    Rect {
+        c: [f32; 2],
+        h: [f32; 2],
+        dir: [f32; 2],
+    },
+    Stripes {
+        period: f32,
+        dir: [f32; 2],
+    },
 }
 
 impl Shape {

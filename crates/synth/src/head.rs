@@ -125,8 +125,9 @@ impl HeadStyle {
         let mean = model.mean_shape();
         let mut eye_angle = vec![0.0f32; parts.len()];
         for side in [-1.0f32, 1.0] {
-            let idx: Vec<usize> =
-                (0..parts.len()).filter(|&v| matches!(parts[v], Part::Sclera | Part::Iris) && mean[v][0] * side > 0.0).collect();
+            let idx: Vec<usize> = (0..parts.len())
+                .filter(|&v| matches!(parts[v], Part::Sclera | Part::Iris) && mean[v][0] * side > 0.0)
+                .collect();
             if idx.is_empty() {
                 continue;
             }

@@ -47,7 +47,12 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> SynthError + '_ {
 }
 
 /// PNG bytes of an 8-bit image (deterministic: fixed encoder settings).
-pub fn png_bytes(data: &[u8], width: u32, height: u32, color: image::ExtendedColorType) -> Result<Vec<u8>, image::ImageError> {
+pub fn png_bytes(
+    data: &[u8],
+    width: u32,
+    height: u32,
+    color: image::ExtendedColorType,
+) -> Result<Vec<u8>, image::ImageError> {
     let mut out = Vec::new();
     image::codecs::png::PngEncoder::new_with_quality(
         &mut out,

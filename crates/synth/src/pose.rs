@@ -37,7 +37,9 @@ mod tests {
 
     #[test]
     fn axis_angle_reproduces_the_matrix() {
-        for (y, p, r) in [(0.0, 0.0, 0.0), (90.0, 0.0, 0.0), (-90.0, 20.0, -15.0), (45.0, -30.0, 30.0), (3.0, 1.0, -2.0)] {
+        for (y, p, r) in
+            [(0.0, 0.0, 0.0), (90.0, 0.0, 0.0), (-90.0, 20.0, -15.0), (45.0, -30.0, 30.0), (3.0, 1.0, -2.0)]
+        {
             let e = Euler { yaw_deg: y, pitch_deg: p, roll_deg: r };
             let a = rotation_matrix(e.axis_angle());
             let b = e.matrix();

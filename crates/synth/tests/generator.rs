@@ -135,7 +135,8 @@ fn frontal_faces_show_every_landmark_profiles_hide_the_far_side() {
 fn crops_fall_in_the_requested_bucket() {
     let model = model();
     for b in 0..4u8 {
-        let g = Generator::new(&model, SynthConfig { buckets: vec![b], max_image_side: 512, ..Default::default() }).unwrap();
+        let g = Generator::new(&model, SynthConfig { buckets: vec![b], max_image_side: 512, ..Default::default() })
+            .unwrap();
         for i in 0..3 {
             let t = g.sample(5, i).unwrap().truth;
             assert_eq!(t.crop.bucket, Some(b), "bucket {b}, sample {i}: side {}", t.crop.side);
@@ -182,7 +183,9 @@ fn bad_settings_are_refused() {
 #[test]
 fn landmark_visibility_agrees_with_ray_casting() {
     let model = model();
-    let g = Generator::new(&model, SynthConfig { image_size: Some((320, 320)), buckets: vec![0, 1], ..Default::default() }).unwrap();
+    let g =
+        Generator::new(&model, SynthConfig { image_size: Some((320, 320)), buckets: vec![0, 1], ..Default::default() })
+            .unwrap();
     let (mut agree, mut total) = (0, 0);
     for i in 0..6 {
         let s = g.sample(9, i).unwrap();
@@ -194,9 +197,13 @@ fn landmark_visibility_agrees_with_ray_casting() {
             let dist = target.length();
             let dir = target / dist;
             let blocked = g.style().triangles.iter().enumerate().any(|(k, t)| {
-                !g.style().lash_triangle[k] && ray_hit(dir, t.map(|v| glam::Vec3::from(pos[v as usize]))).is_some_and(|d| d < dist - 5.0)
+                !g.style().lash_triangle[k]
+                    && ray_hit(dir, t.map(|v| glam::Vec3::from(pos[v as usize]))).is_some_and(|d| d < dist - 5.0)
             });
-            let inside = lm.xy[0] > -0.5 && lm.xy[1] > -0.5 && lm.xy[0] < s.truth.width as f32 - 0.5 && lm.xy[1] < s.truth.height as f32 - 0.5;
+            let inside = lm.xy[0] > -0.5
+                && lm.xy[1] > -0.5
+                && lm.xy[0] < s.truth.width as f32 - 0.5
+                && lm.xy[1] < s.truth.height as f32 - 0.5;
             total += 1;
             agree += ((!blocked && inside) == lm.visible) as u32;
         }

@@ -21,14 +21,9 @@ fn jpeg_640x480() -> Vec<u8> {
     let bytes = std::fs::read(dir.join(PHOTO)).expect("faces-300w photo");
     let img = facerecon_vision::decode::decode(&bytes).expect("decodes");
     let (w, h) = (img.width(), img.height());
-    let (cw, ch) = if w * 3 > h * 4 {
-        (h * 4 / 3, h)
-    } else {
-        (w, w * 3 / 4)
-    };
+    let (cw, ch) = if w * 3 > h * 4 { (h * 4 / 3, h) } else { (w, w * 3 / 4) };
     let cropped = image::imageops::crop_imm(&img, (w - cw) / 2, (h - ch) / 2, cw, ch).to_image();
-    let small =
-        image::imageops::resize(&cropped, 640, 480, image::imageops::FilterType::CatmullRom);
+    let small = image::imageops::resize(&cropped, 640, 480, image::imageops::FilterType::CatmullRom);
     let mut out = Vec::new();
     image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, 90)
         .write_image(small.as_raw(), 640, 480, image::ExtendedColorType::Rgb8)
@@ -36,20 +31,13 @@ fn jpeg_640x480() -> Vec<u8> {
     out
 }
 
-
 fn decode_jpeg(c: &mut Criterion) {
     let jpeg = jpeg_640x480();
     eprintln!("640×480 JPEG: {} bytes", jpeg.len());
-    let ours = || {
-        drop(black_box(
-            facerecon_vision::decode::decode(black_box(&jpeg)).unwrap(),
-        ))
-    };
+    let ours = || drop(black_box(facerecon_vision::decode::decode(black_box(&jpeg)).unwrap()));
     let zune = || {
         drop(black_box(
-            image::load_from_memory_with_format(black_box(&jpeg), image::ImageFormat::Jpeg)
-                .unwrap()
-                .into_rgb8(),
+            image::load_from_memory_with_format(black_box(&jpeg), image::ImageFormat::Jpeg).unwrap().into_rgb8(),
         ))
     };
     eprintln!(

@@ -100,7 +100,8 @@ fn main() {
             }
             // DETECT_C2F=f: coarse-to-fine scan with stage fraction f (`off`: every window).
             if let Ok(v) = std::env::var("DETECT_C2F") {
-                let coarse_to_fine = if v == "off" { None } else { Some(v.parse::<f32>().expect("DETECT_C2F: a number or off")) };
+                let coarse_to_fine =
+                    if v == "off" { None } else { Some(v.parse::<f32>().expect("DETECT_C2F: a number or off")) };
                 det.set_params(DetectorParams { coarse_to_fine, ..det.params().clone() }).unwrap();
             }
             // DETECT_C2F_GRID=n: coarse grid of the coarse-to-fine scan, in window steps.
@@ -117,9 +118,17 @@ fn main() {
                 })
                 .collect();
             let (all, train, test) = rates(&photos, &found);
-            println!("mode {mode}: detection rate all {all:.1} %, train {train:.1} %, afw+test {test:.1} % ({} photos, {:.1} s)", photos.len(), t.elapsed().as_secs_f64());
+            println!(
+                "mode {mode}: detection rate all {all:.1} %, train {train:.1} %, afw+test {test:.1} % ({} photos, {:.1} s)",
+                photos.len(),
+                t.elapsed().as_secs_f64()
+            );
             for sub in ["afw", "helen", "lfpw"] {
-                let (n, k) = photos.iter().zip(&found).filter(|(p, _)| p.subset.starts_with(sub) || p.rel.starts_with(sub)).fold((0, 0), |a, (_, &f)| (a.0 + 1, a.1 + usize::from(f)));
+                let (n, k) = photos
+                    .iter()
+                    .zip(&found)
+                    .filter(|(p, _)| p.subset.starts_with(sub) || p.rel.starts_with(sub))
+                    .fold((0, 0), |a, (_, &f)| (a.0 + 1, a.1 + usize::from(f)));
                 println!("  {sub}: {k}/{n} = {:.1} %", 100.0 * k as f64 / n as f64);
             }
         }
@@ -150,7 +159,13 @@ fn tune(photos: &[Photo], dir: &std::path::Path) {
     let paths: Vec<(PathBuf, bool)> = files.iter().map(|(_, f, m)| (dir.join(f), *m)).collect();
     let refs: Vec<(&std::path::Path, bool)> = paths.iter().map(|(p, m)| (p.as_path(), *m)).collect();
     // The tune run of docs/decisions/0400 used OpenCV's step rule (step_on_prefiltered off).
-    let params = DetectorParams { scale_factor: sf, min_size_fraction: frac, step_on_prefiltered, fixed_step, ..Default::default() };
+    let params = DetectorParams {
+        scale_factor: sf,
+        min_size_fraction: frac,
+        step_on_prefiltered,
+        fixed_step,
+        ..Default::default()
+    };
     let det = ViolaJones::from_files(&refs, params.clone()).unwrap();
     let names: Vec<String> = det.cascades().iter().map(|c| c.name.clone()).collect();
     println!("cascades: {names:?}, scale {sf}, min fraction {frac}, step {step}");
@@ -161,7 +176,7 @@ fn tune(photos: &[Photo], dir: &std::path::Path) {
         .map(|p| {
             let h = det.scan_grey(&Grey::from_rgb(&load(&p.rel)));
             let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
-            if n % 50 == 0 {
+            if n.is_multiple_of(50) {
                 eprintln!("{n} photos scanned, {:.0} s", t.elapsed().as_secs_f64());
             }
             h
@@ -174,22 +189,79 @@ fn tune(photos: &[Photo], dir: &std::path::Path) {
         ("frontal", vec!["haarcascade_frontalface_default"]),
         ("alt2", vec!["haarcascade_frontalface_alt2"]),
         ("lbp-improved", vec!["lbpcascade_frontalface_improved"]),
-        ("frontal+profile×2", vec!["haarcascade_frontalface_default", "haarcascade_profileface", "haarcascade_profileface-mirrored"]),
-        ("alt2+profile×2", vec!["haarcascade_frontalface_alt2", "haarcascade_profileface", "haarcascade_profileface-mirrored"]),
-        ("frontal+alt2+profile×2", vec!["haarcascade_frontalface_default", "haarcascade_frontalface_alt2", "haarcascade_profileface", "haarcascade_profileface-mirrored"]),
-        ("frontal+lbp-profile×2", vec!["haarcascade_frontalface_default", "lbpcascade_profileface", "lbpcascade_profileface-mirrored"]),
-        ("alt2+lbp-profile×2", vec!["haarcascade_frontalface_alt2", "lbpcascade_profileface", "lbpcascade_profileface-mirrored"]),
-        ("frontal+profile×2+lbp-profile×2", vec!["haarcascade_frontalface_default", "haarcascade_profileface", "haarcascade_profileface-mirrored", "lbpcascade_profileface", "lbpcascade_profileface-mirrored"]),
-        ("lbp-improved+profile×2", vec!["lbpcascade_frontalface_improved", "haarcascade_profileface", "haarcascade_profileface-mirrored"]),
-        ("frontal+lbp-improved+profile×2", vec!["haarcascade_frontalface_default", "lbpcascade_frontalface_improved", "haarcascade_profileface", "haarcascade_profileface-mirrored"]),
+        (
+            "frontal+profile×2",
+            vec!["haarcascade_frontalface_default", "haarcascade_profileface", "haarcascade_profileface-mirrored"],
+        ),
+        (
+            "alt2+profile×2",
+            vec!["haarcascade_frontalface_alt2", "haarcascade_profileface", "haarcascade_profileface-mirrored"],
+        ),
+        (
+            "frontal+alt2+profile×2",
+            vec![
+                "haarcascade_frontalface_default",
+                "haarcascade_frontalface_alt2",
+                "haarcascade_profileface",
+                "haarcascade_profileface-mirrored",
+            ],
+        ),
+        (
+            "frontal+lbp-profile×2",
+            vec!["haarcascade_frontalface_default", "lbpcascade_profileface", "lbpcascade_profileface-mirrored"],
+        ),
+        (
+            "alt2+lbp-profile×2",
+            vec!["haarcascade_frontalface_alt2", "lbpcascade_profileface", "lbpcascade_profileface-mirrored"],
+        ),
+        (
+            "frontal+profile×2+lbp-profile×2",
+            vec![
+                "haarcascade_frontalface_default",
+                "haarcascade_profileface",
+                "haarcascade_profileface-mirrored",
+                "lbpcascade_profileface",
+                "lbpcascade_profileface-mirrored",
+            ],
+        ),
+        (
+            "lbp-improved+profile×2",
+            vec!["lbpcascade_frontalface_improved", "haarcascade_profileface", "haarcascade_profileface-mirrored"],
+        ),
+        (
+            "frontal+lbp-improved+profile×2",
+            vec![
+                "haarcascade_frontalface_default",
+                "lbpcascade_frontalface_improved",
+                "haarcascade_profileface",
+                "haarcascade_profileface-mirrored",
+            ],
+        ),
         ("frontal+lbp-improved", vec!["haarcascade_frontalface_default", "lbpcascade_frontalface_improved"]),
-        ("frontal+lbp-improved+profile", vec!["haarcascade_frontalface_default", "lbpcascade_frontalface_improved", "haarcascade_profileface"]),
-        ("frontal+lbp-improved+lbp-profile×2", vec!["haarcascade_frontalface_default", "lbpcascade_frontalface_improved", "lbpcascade_profileface", "lbpcascade_profileface-mirrored"]),
-        ("lbp-improved+lbp-profile×2", vec!["lbpcascade_frontalface_improved", "lbpcascade_profileface", "lbpcascade_profileface-mirrored"]),
+        (
+            "frontal+lbp-improved+profile",
+            vec!["haarcascade_frontalface_default", "lbpcascade_frontalface_improved", "haarcascade_profileface"],
+        ),
+        (
+            "frontal+lbp-improved+lbp-profile×2",
+            vec![
+                "haarcascade_frontalface_default",
+                "lbpcascade_frontalface_improved",
+                "lbpcascade_profileface",
+                "lbpcascade_profileface-mirrored",
+            ],
+        ),
+        (
+            "lbp-improved+lbp-profile×2",
+            vec!["lbpcascade_frontalface_improved", "lbpcascade_profileface", "lbpcascade_profileface-mirrored"],
+        ),
         ("all", names.iter().map(|s| s.as_str()).collect()),
     ];
     let combos: Vec<(&str, Vec<&str>)> = combos.into_iter().filter(|(_, m)| m.iter().all(|n| have(n))).collect();
-    println!("{:<34} {:>3} {:>7} {:>7} {:>9} {:>8}", "combination", "mn", "all %", "train %", "afw+test %", "faces/img");
+    println!(
+        "{:<34} {:>3} {:>7} {:>7} {:>9} {:>8}",
+        "combination", "mn", "all %", "train %", "afw+test %", "faces/img"
+    );
     for (label, members) in &combos {
         for mn in [1usize, 2, 3, 4] {
             let mut total_faces = 0usize;
@@ -204,7 +276,10 @@ fn tune(photos: &[Photo], dir: &std::path::Path) {
                 })
                 .collect();
             let (all, train, test) = rates(photos, &found);
-            println!("{label:<34} {mn:>3} {all:>7.1} {train:>7.1} {test:>9.1} {:>8.2}", total_faces as f64 / photos.len() as f64);
+            println!(
+                "{label:<34} {mn:>3} {all:>7.1} {train:>7.1} {test:>9.1} {:>8.2}",
+                total_faces as f64 / photos.len() as f64
+            );
         }
     }
 }

@@ -1,10 +1,10 @@
 //! Detection time on a 640×480 photo (a faces-300w photo resized at run time).
 //!
 //!     cargo bench -p facerecon-vision --bench detect_speed
-#[path = "../tests/support/process_cpu.rs"]
-mod process_cpu;
 #[path = "../tests/support/faces300w.rs"]
 mod faces300w;
+#[path = "../tests/support/process_cpu.rs"]
+mod process_cpu;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use facerecon_vision::detect::{DetectorParams, ViolaJones};
@@ -32,7 +32,8 @@ fn bench(c: &mut Criterion) {
         every.detect_faces(&img);
     });
     let mut slow = det.clone();
-    slow.set_params(DetectorParams { step_on_prefiltered: false, coarse_to_fine: None, ..det.params().clone() }).unwrap();
+    slow.set_params(DetectorParams { step_on_prefiltered: false, coarse_to_fine: None, ..det.params().clone() })
+        .unwrap();
     cpu_per_call("every window, OpenCV's step rule", || {
         slow.detect_faces(&img);
     });
@@ -41,13 +42,19 @@ fn bench(c: &mut Criterion) {
     cpu_per_call("opencv params", || {
         opencv_like.detect_faces(&img);
     });
-    c.bench_function("detect 640x480 default (haar frontal + lbp frontal + profile×2)", |b| b.iter(|| det.detect_faces(&img)));
+    c.bench_function("detect 640x480 default (haar frontal + lbp frontal + profile×2)", |b| {
+        b.iter(|| det.detect_faces(&img))
+    });
     c.bench_function("detect 640x480 default, every window", |b| b.iter(|| every.detect_faces(&img)));
     let mut opencv = det.clone();
     opencv.set_params(DetectorParams::opencv()).unwrap();
     c.bench_function("detect 640x480 opencv params (same cascades)", |b| b.iter(|| opencv.detect_faces(&img)));
     let frontal = ViolaJones::from_files(
-        &[(&std::path::Path::new(facerecon_vision::detect::OPENCV_DATA_DIR).join(facerecon_vision::detect::FRONTAL_HAAR), false)],
+        &[(
+            &std::path::Path::new(facerecon_vision::detect::OPENCV_DATA_DIR)
+                .join(facerecon_vision::detect::FRONTAL_HAAR),
+            false,
+        )],
         DetectorParams::opencv(),
     )
     .unwrap();

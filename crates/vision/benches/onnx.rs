@@ -11,7 +11,9 @@ use std::time::Instant;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use facerecon_vision::face::{Detection, FaceBox, FaceDetector, LandmarkPredictor};
-use facerecon_vision::onnx::{OnnxDetector, OnnxDetectorConfig, OnnxLandmarker, OnnxLandmarkerConfig, OnnxRuntimeConfig, onnx_runtime};
+use facerecon_vision::onnx::{
+    OnnxDetector, OnnxDetectorConfig, OnnxLandmarker, OnnxLandmarkerConfig, OnnxRuntimeConfig, onnx_runtime,
+};
 use image::{Rgb, RgbImage};
 use onnx_graph::*;
 use ort::session::Session;
@@ -80,7 +82,8 @@ fn landmarker() -> Vec<u8> {
 
 fn bench(c: &mut Criterion) {
     let t = Instant::now();
-    let env = onnx_runtime(&OnnxRuntimeConfig::default()).expect("ONNX Runtime library (run scripts/install-onnxruntime)");
+    let env =
+        onnx_runtime(&OnnxRuntimeConfig::default()).expect("ONNX Runtime library (run scripts/install-onnxruntime)");
     eprintln!("one-off: loading the runtime library + environment took {:.1} ms", t.elapsed().as_secs_f64() * 1e3);
 
     let ident = identity();
@@ -96,7 +99,8 @@ fn bench(c: &mut Criterion) {
         b.iter(|| black_box(OnnxDetector::from_bytes(OnnxDetectorConfig::default(), &det_bytes, "bench").unwrap()))
     });
 
-    let mut session = Session::builder(&env).unwrap().with_intra_threads(1).unwrap().commit_from_memory(&ident).unwrap();
+    let mut session =
+        Session::builder(&env).unwrap().with_intra_threads(1).unwrap().commit_from_memory(&ident).unwrap();
     let data = vec![0.5f32; 3 * 8 * 8];
     c.bench_function("run/identity_1x3x8x8", |b| {
         b.iter(|| {
@@ -117,7 +121,11 @@ fn bench(c: &mut Criterion) {
     c.bench_function("detect/640x480_photo_640x640_input", |b| b.iter(|| black_box(det640.detect(&vga).unwrap())));
 
     let lm = OnnxLandmarker::from_bytes(OnnxLandmarkerConfig::default(), &lm_bytes, "bench").unwrap();
-    let face = Detection { face_box: FaceBox { x0: 250.0, y0: 150.0, x1: 409.0, y1: 329.0 }, score: 1.0, source: "bench".into() };
+    let face = Detection {
+        face_box: FaceBox { x0: 250.0, y0: 150.0, x1: 409.0, y1: 329.0 },
+        score: 1.0,
+        source: "bench".into(),
+    };
     c.bench_function("landmarks/112x112_crop_of_640x480", |b| b.iter(|| black_box(lm.predict(&vga, &face).unwrap())));
 }
 

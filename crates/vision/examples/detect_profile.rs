@@ -7,16 +7,15 @@
 //! Parameters can be overridden: DETECT_C2F (coarse-to-fine stage fraction; negative: off)
 //! and DETECT_C2F_GRID (its coarse grid in window steps).
 
-#[path = "../tests/support/process_cpu.rs"]
-mod process_cpu;
 #[path = "../tests/support/faces300w.rs"]
 mod faces300w;
+#[path = "../tests/support/process_cpu.rs"]
+mod process_cpu;
 
 use facerecon_vision::detect::integral::Integral;
 use facerecon_vision::detect::pyramid::{self, Grey};
 use facerecon_vision::detect::scan::{Compiled, Outcome};
 use facerecon_vision::detect::{DetectorParams, ViolaJones};
-
 
 /// (CPU ms, wall ms) per call of `f` after one warm-up call.
 fn per_call(n: usize, mut f: impl FnMut()) -> (f64, f64) {
@@ -60,7 +59,15 @@ fn main() {
             let comp = Compiled::new(&c.cascade, ii.stride);
             let (ex, ey) = c.cascade.extent();
             let (mut n, mut flat, mut acc, mut weak, mut rej0) = (0usize, 0usize, 0usize, 0usize, 0usize);
-            let cum: Vec<usize> = c.cascade.stages.iter().scan(0, |a, s| { *a += s.weak.len(); Some(*a) }).collect();
+            let cum: Vec<usize> = c
+                .cascade
+                .stages
+                .iter()
+                .scan(0, |a, s| {
+                    *a += s.weak.len();
+                    Some(*a)
+                })
+                .collect();
             let mut y = 0;
             while y + ey as usize <= ii.height {
                 let mut x = 0;
@@ -68,15 +75,29 @@ fn main() {
                     n += 1;
                     match comp.eval(&ii, y * ii.stride + x) {
                         Outcome::Flat => flat += 1,
-                        Outcome::Rejected(s) => { weak += cum[s]; if s == 0 { rej0 += 1; } }
-                        Outcome::Accepted(_) => { acc += 1; weak += cum[cum.len() - 1]; }
+                        Outcome::Rejected(s) => {
+                            weak += cum[s];
+                            if s == 0 {
+                                rej0 += 1;
+                            }
+                        }
+                        Outcome::Accepted(_) => {
+                            acc += 1;
+                            weak += cum[cum.len() - 1];
+                        }
                     }
                     x += 2;
                 }
                 y += 2;
             }
-            println!("scale {f:.1} level {lw}x{lh} {:<22} windows {n:6} flat {:4.1}% stage0-reject {:4.1}% accepted {acc:3} weak/window {:5.1} (stage0 has {})",
-                c.name, 100.0 * flat as f64 / n as f64, 100.0 * rej0 as f64 / n as f64, weak as f64 / (n - flat).max(1) as f64, cum[0]);
+            println!(
+                "scale {f:.1} level {lw}x{lh} {:<22} windows {n:6} flat {:4.1}% stage0-reject {:4.1}% accepted {acc:3} weak/window {:5.1} (stage0 has {})",
+                c.name,
+                100.0 * flat as f64 / n as f64,
+                100.0 * rej0 as f64 / n as f64,
+                weak as f64 / (n - flat).max(1) as f64,
+                cum[0]
+            );
         }
     }
 }

@@ -96,7 +96,10 @@ fn yaw(pts: &[[f32; 2]]) -> f32 {
 }
 
 /// Phase 1, or its saved result.
-fn detections_cached(path: Option<std::path::PathBuf>, run: impl FnOnce() -> Vec<(usize, Option<Detection>)>) -> Vec<(usize, Option<Detection>)> {
+fn detections_cached(
+    path: Option<std::path::PathBuf>,
+    run: impl FnOnce() -> Vec<(usize, Option<Detection>)>,
+) -> Vec<(usize, Option<Detection>)> {
     if let Some((p, text)) = path.as_ref().and_then(|p| Some((p, std::fs::read_to_string(p).ok()?))) {
         eprintln!("detections read from {}", p.display());
         return serde_json::from_str(&text).expect("detections file");
@@ -139,23 +142,25 @@ fn main() {
     let done = std::sync::atomic::AtomicUsize::new(0);
     // Phase 1: detections (the slow part), best-overlapping detection per photo.
     let cache = std::env::var_os("FACERECON_EVAL_DETECTIONS").map(std::path::PathBuf::from);
-    let detected = detections_cached(cache, || parallel(&(0..photos.len()).collect::<Vec<_>>(), |&i| {
-        let p = &photos[i];
-        let tbox = faces300w::landmark_box(&faces300w::read_pts(&dir, &p.path));
-        let img = faces300w::load_rgb(&dir, &p.path);
-        let dets = detector.detect(&img).expect("detector");
-        let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
-        if n % 25 == 0 {
-            eprintln!("{n} photos detected, {:.0} s", t.elapsed().as_secs_f64());
-        }
-        let best = dets
-            .iter()
-            .map(|d| (d.face_box.iou(&tbox), d))
-            .filter(|(iou, _)| *iou > 0.3)
-            .max_by(|a, b| a.0.total_cmp(&b.0))
-            .map(|x| x.1.clone());
-        Some((i, best))
-    }));
+    let detected = detections_cached(cache, || {
+        parallel(&(0..photos.len()).collect::<Vec<_>>(), |&i| {
+            let p = &photos[i];
+            let tbox = faces300w::landmark_box(&faces300w::read_pts(&dir, &p.path));
+            let img = faces300w::load_rgb(&dir, &p.path);
+            let dets = detector.detect(&img).expect("detector");
+            let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+            if n.is_multiple_of(25) {
+                eprintln!("{n} photos detected, {:.0} s", t.elapsed().as_secs_f64());
+            }
+            let best = dets
+                .iter()
+                .map(|d| (d.face_box.iou(&tbox), d))
+                .filter(|(iou, _)| *iou > 0.3)
+                .max_by(|a, b| a.0.total_cmp(&b.0))
+                .map(|x| x.1.clone());
+            Some((i, best))
+        })
+    });
     eprintln!("detection on {} photos in {:.1} s", photos.len(), t.elapsed().as_secs_f64());
     // Refit of the calibration on trainset pairs (detection, dlib HOG box).
     let mut pairs: BTreeMap<String, Vec<(FaceBox, FaceBox)>> = BTreeMap::new();
@@ -175,7 +180,11 @@ fn main() {
             println!("  {s:?} ({} pairs): {m:?}", v.len());
             refit.by_source.insert(s.clone(), m);
         } else {
-            println!("  {s:?}: {} pairs, uses {:?}", v.len(), s.strip_suffix("-mirrored").map_or("the fallback".to_string(), |b| format!("{b}'s map mirrored")));
+            println!(
+                "  {s:?}: {} pairs, uses {:?}",
+                v.len(),
+                s.strip_suffix("-mirrored").map_or("the fallback".to_string(), |b| format!("{b}'s map mirrored"))
+            );
         }
     }
     // Phase 2: landmarks, through the front end.
@@ -198,7 +207,8 @@ fn main() {
         };
         let nme_passes = best.as_ref().map(|d| [0, 1, 2, 3].map(|k| through(&fronts[k], d).0));
         let nme_uncalibrated_passes = best.as_ref().map(|d| [0, 1].map(|k| through(&uncal[k], d).0));
-        let hog_det = refs.get(&p.path).map(|r| Detection { face_box: r.face_box(), score: 1.0, source: "dlib-hog".into() });
+        let hog_det =
+            refs.get(&p.path).map(|r| Detection { face_box: r.face_box(), score: 1.0, source: "dlib-hog".into() });
         let nme_hog_passes = hog_det.as_ref().map(|d| [0, 1].map(|k| through(&hog[k], d).0));
         let passes_run = best.as_ref().map(|d| fronts[2].face(&img, d.clone()).expect("front end").landmark_passes);
         let nme_every_pass = best.as_ref().map(|d| through(&every_pass, d).0);
@@ -235,7 +245,8 @@ fn main() {
     });
     eprintln!("{} photos in {:.1} s", results.len(), t.elapsed().as_secs_f64());
 
-    let groups: Vec<(&str, Box<dyn Fn(&str) -> bool>)> = vec![
+    type Group<'a> = (&'a str, Box<dyn Fn(&str) -> bool>);
+    let groups: Vec<Group> = vec![
         ("afw", Box::new(|p: &str| faces300w::folder_of(p) == "afw")),
         ("helen/testset", Box::new(|p: &str| faces300w::folder_of(p) == "helen/testset")),
         ("helen/trainset", Box::new(|p: &str| faces300w::folder_of(p) == "helen/trainset")),
@@ -245,7 +256,9 @@ fn main() {
         ("trainset (calibration fit)", Box::new(|p: &str| faces300w::is_trainset(p))),
         ("all 700", Box::new(|_: &str| true)),
     ];
-    println!("| photos | n | detection rate | NME 1 pass (calibration in code) | NME 1 pass (refit calibration) | NME 1 pass without calibration | dlib on its HOG boxes (ref.) | our port on dlib's HOG boxes |");
+    println!(
+        "| photos | n | detection rate | NME 1 pass (calibration in code) | NME 1 pass (refit calibration) | NME 1 pass without calibration | dlib on its HOG boxes (ref.) | our port on dlib's HOG boxes |"
+    );
     println!("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |");
     for (name, f) in &groups {
         let rs: Vec<&PhotoResult> = results.iter().filter(|r| f(&r.path)).collect();
@@ -286,8 +299,12 @@ fn main() {
         every(&|_| true),
         every(&|p| !faces300w::is_trainset(p))
     );
-    println!("Refinement passes (calibration in code, map `BoxFromLandmarks::dlib_68()`, a pass skipped once the box settles):");
-    println!("| photos | 1 pass (no refinement) | 2 passes | 3 passes | 4 passes | raw detector box, 1 pass | raw detector box, 3 passes | dlib HOG box, 1 pass | dlib HOG box, 2 passes |");
+    println!(
+        "Refinement passes (calibration in code, map `BoxFromLandmarks::dlib_68()`, a pass skipped once the box settles):"
+    );
+    println!(
+        "| photos | 1 pass (no refinement) | 2 passes | 3 passes | 4 passes | raw detector box, 1 pass | raw detector box, 3 passes | dlib HOG box, 1 pass | dlib HOG box, 2 passes |"
+    );
     println!("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |");
     for (name, f) in &groups {
         let rs: Vec<&PhotoResult> = results.iter().filter(|r| f(&r.path)).collect();
@@ -314,7 +331,14 @@ fn main() {
                 r.source.as_deref().unwrap_or(""),
                 r.iou.map_or(String::new(), |v| format!("{v:.3}")),
                 r.yaw,
-                f(n[0]), f(n[1]), f(n[2]), f(n[3]), f(u[0]), f(u[1]), f(h[0]), f(h[1]),
+                f(n[0]),
+                f(n[1]),
+                f(n[2]),
+                f(n[3]),
+                f(u[0]),
+                f(u[1]),
+                f(h[0]),
+                f(h[1]),
                 f(r.nme_dlib_ref)
             );
         }
@@ -323,9 +347,12 @@ fn main() {
 
     println!();
     println!("Worst 15 afw photos (3 passes, as `facerecon detect`):");
-    println!("| photo | NME 1 pass | NME 2 passes | NME 3 passes | source | IoU detection / annotated box | final box IoU with dlib's HOG box | yaw | dlib on its HOG box |");
+    println!(
+        "| photo | NME 1 pass | NME 2 passes | NME 3 passes | source | IoU detection / annotated box | final box IoU with dlib's HOG box | yaw | dlib on its HOG box |"
+    );
     println!("| --- | ---: | ---: | ---: | --- | ---: | ---: | ---: | ---: |");
-    let mut afw: Vec<&PhotoResult> = results.iter().filter(|r| faces300w::folder_of(&r.path) == "afw" && r.nme_passes.is_some()).collect();
+    let mut afw: Vec<&PhotoResult> =
+        results.iter().filter(|r| faces300w::folder_of(&r.path) == "afw" && r.nme_passes.is_some()).collect();
     afw.sort_by(|a, b| b.nme_passes.unwrap()[2].total_cmp(&a.nme_passes.unwrap()[2]));
     let opt = |v: Option<f64>, scale: f64| v.map_or("–".to_string(), |v| format!("{:.2}", scale * v));
     for r in afw.iter().take(15) {
@@ -349,7 +376,10 @@ fn main() {
 fn parallel<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> Option<R> + Sync) -> Vec<R> {
     let threads = std::thread::available_parallelism().map_or(2, |n| n.get());
     std::thread::scope(|s| {
-        let hs: Vec<_> = items.chunks(items.len().div_ceil(threads).max(1)).map(|c| s.spawn(|| c.iter().filter_map(&f).collect::<Vec<_>>())).collect();
+        let hs: Vec<_> = items
+            .chunks(items.len().div_ceil(threads).max(1))
+            .map(|c| s.spawn(|| c.iter().filter_map(&f).collect::<Vec<_>>()))
+            .collect();
         hs.into_iter().flat_map(|h| h.join().unwrap()).collect()
     })
 }

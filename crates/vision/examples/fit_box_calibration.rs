@@ -25,7 +25,8 @@ fn main() {
         .filter(|r| r.box_kind == "dlib_hog")
         .map(|r| (r.path.clone(), r.face_box()))
         .collect();
-    let photos: Vec<_> = faces300w::read_manifest(&dir).into_iter().filter(|p| faces300w::is_trainset(&p.path)).collect();
+    let photos: Vec<_> =
+        faces300w::read_manifest(&dir).into_iter().filter(|p| faces300w::is_trainset(&p.path)).collect();
     let mut detector = ViolaJones::load_default().expect("cascades");
     // Smallest face sought: 10 % of the image's shorter side (99 % of the annotated faces
     // here are wider than 12.6 % of it, the smallest 6.4 %); the product default (24 px at
@@ -69,7 +70,11 @@ fn main() {
     let iou = |f: &dyn Fn(&str, &FaceBox) -> FaceBox| {
         pairs.iter().map(|(s, d, t)| f(s, d).iou(t) as f64).sum::<f64>() / pairs.len() as f64
     };
-    println!("mean IoU with dlib's box: raw {:.3}, fallback map {:.3}", iou(&|_, d| *d), iou(&|_, d| fallback.apply(d)));
+    println!(
+        "mean IoU with dlib's box: raw {:.3}, fallback map {:.3}",
+        iou(&|_, d| *d),
+        iou(&|_, d| fallback.apply(d))
+    );
 }
 
 fn rust(m: &BoxMap) -> String {
@@ -83,7 +88,10 @@ fn rust(m: &BoxMap) -> String {
 fn parallel<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> Option<R> + Sync) -> Vec<R> {
     let threads = std::thread::available_parallelism().map_or(2, |n| n.get());
     std::thread::scope(|s| {
-        let hs: Vec<_> = items.chunks(items.len().div_ceil(threads).max(1)).map(|c| s.spawn(|| c.iter().filter_map(&f).collect::<Vec<_>>())).collect();
+        let hs: Vec<_> = items
+            .chunks(items.len().div_ceil(threads).max(1))
+            .map(|c| s.spawn(|| c.iter().filter_map(&f).collect::<Vec<_>>()))
+            .collect();
         hs.into_iter().flat_map(|h| h.join().unwrap()).collect()
     })
 }

@@ -39,10 +39,7 @@ impl DecodeLimits {
 
 impl Default for DecodeLimits {
     fn default() -> Self {
-        Self {
-            max_encoded_bytes: Self::DEFAULT_MAX_ENCODED_BYTES,
-            max_pixels: Self::DEFAULT_MAX_PIXELS,
-        }
+        Self { max_encoded_bytes: Self::DEFAULT_MAX_ENCODED_BYTES, max_pixels: Self::DEFAULT_MAX_PIXELS }
     }
 }
 
@@ -58,12 +55,7 @@ pub enum DecodeError {
     #[error("unsupported image format {format}: only JPEG, PNG and WebP are accepted")]
     UnsupportedFormat { format: String },
     #[error("image too large: {width}×{height} = {pixels} pixels, the limit is {limit} pixels")]
-    TooManyPixels {
-        width: u32,
-        height: u32,
-        pixels: u64,
-        limit: u64,
-    },
+    TooManyPixels { width: u32, height: u32, pixels: u64, limit: u64 },
     #[error("image has zero size ({width}×{height})")]
     ZeroSize { width: u32, height: u32 },
     #[error("corrupt or truncated {format} image: {reason}")]
@@ -83,10 +75,7 @@ pub fn decode_with_limits(bytes: &[u8], limits: &DecodeLimits) -> Result<RgbImag
         return Err(DecodeError::Empty);
     }
     if bytes.len() > limits.max_encoded_bytes {
-        return Err(DecodeError::EncodedTooLarge {
-            bytes: bytes.len(),
-            limit: limits.max_encoded_bytes,
-        });
+        return Err(DecodeError::EncodedTooLarge { bytes: bytes.len(), limit: limits.max_encoded_bytes });
     }
     let format = image::guess_format(bytes).map_err(|_| DecodeError::UnknownFormat)?;
     let name = format_name(format);
@@ -111,17 +100,10 @@ pub fn decode_with_limits(bytes: &[u8], limits: &DecodeLimits) -> Result<RgbImag
     }
     let pixels = u64::from(width) * u64::from(height);
     if pixels > limits.max_pixels {
-        return Err(DecodeError::TooManyPixels {
-            width,
-            height,
-            pixels,
-            limit: limits.max_pixels,
-        });
+        return Err(DecodeError::TooManyPixels { width, height, pixels, limit: limits.max_pixels });
     }
     // A malformed EXIF block is not worth refusing the photo for: keep it upright as stored.
-    let orientation = decoder
-        .orientation()
-        .unwrap_or(image::metadata::Orientation::NoTransforms);
+    let orientation = decoder.orientation().unwrap_or(image::metadata::Orientation::NoTransforms);
     let mut image = DynamicImage::from_decoder(decoder).map_err(|e| map_error(e, &name))?;
     image.apply_orientation(orientation);
     Ok(match image {
@@ -142,24 +124,12 @@ fn format_name(format: ImageFormat) -> String {
 fn map_error(e: ImageError, format: &str) -> DecodeError {
     let format = format.to_string();
     match e {
-        ImageError::Limits(l) => DecodeError::AllocationLimit {
-            format,
-            reason: l.to_string(),
-        },
-        ImageError::Unsupported(u) => DecodeError::Corrupt {
-            format,
-            reason: format!("unsupported feature: {u}"),
-        },
+        ImageError::Limits(l) => DecodeError::AllocationLimit { format, reason: l.to_string() },
+        ImageError::Unsupported(u) => DecodeError::Corrupt { format, reason: format!("unsupported feature: {u}") },
         ImageError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
-            DecodeError::Corrupt {
-                format,
-                reason: "unexpected end of data (truncated)".into(),
-            }
+            DecodeError::Corrupt { format, reason: "unexpected end of data (truncated)".into() }
         }
-        other => DecodeError::Corrupt {
-            format,
-            reason: other.to_string(),
-        },
+        other => DecodeError::Corrupt { format, reason: other.to_string() },
     }
 }
 
@@ -206,19 +176,10 @@ mod tests {
         let probe = |x: u32, y: u32| {
             let p = img.get_pixel(x, y).0;
             (0..4)
-                .min_by_key(|&q| {
-                    (0..3)
-                        .map(|c| (i32::from(p[c]) - i32::from(QUAD[q][c])).pow(2))
-                        .sum::<i32>()
-                })
+                .min_by_key(|&q| (0..3).map(|c| (i32::from(p[c]) - i32::from(QUAD[q][c])).pow(2)).sum::<i32>())
                 .unwrap()
         };
-        [
-            probe(w / 4, h / 4),
-            probe(3 * w / 4, h / 4),
-            probe(w / 4, 3 * h / 4),
-            probe(3 * w / 4, 3 * h / 4),
-        ]
+        [probe(w / 4, h / 4), probe(3 * w / 4, h / 4), probe(w / 4, 3 * h / 4), probe(3 * w / 4, 3 * h / 4)]
     }
 
     /// Inserts an APP1 EXIF segment (big-endian TIFF, one IFD entry: Orientation) after SOI.

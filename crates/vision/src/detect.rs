@@ -256,7 +256,10 @@ impl ViolaJones {
                 // The profile cascades find few faces the frontal ones miss and cost half
                 // the scan: a coarser grid for them (docs/decisions/0401-detector-speed.md).
                 NamedCascade { coarse_grid: Some(PROFILE_COARSE_GRID), ..NamedCascade::new("haar-profile", profile) },
-                NamedCascade { coarse_grid: Some(PROFILE_COARSE_GRID), ..NamedCascade::new("haar-profile-mirrored", mirrored) },
+                NamedCascade {
+                    coarse_grid: Some(PROFILE_COARSE_GRID),
+                    ..NamedCascade::new("haar-profile-mirrored", mirrored)
+                },
             ],
             DetectorParams::default(),
         )
@@ -283,7 +286,10 @@ impl ViolaJones {
             return Err(DetectError::Params("a detector needs at least one cascade".into()));
         }
         if let Some(c) = cascades.iter().find(|c| c.coarse_grid.is_some_and(|g| !(2..=8).contains(&g))) {
-            return Err(DetectError::Params(format!("cascade {}: coarse_grid {:?} must be in 2..=8", c.name, c.coarse_grid)));
+            return Err(DetectError::Params(format!(
+                "cascade {}: coarse_grid {:?} must be in 2..=8",
+                c.name, c.coarse_grid
+            )));
         }
         Ok(ViolaJones { cascades, params })
     }
@@ -338,7 +344,10 @@ impl ViolaJones {
         let wanted = |c: &Cascade, f: f32| {
             let ww = (f64::from(c.width) * f64::from(f)).round() as f32;
             let wh = (f64::from(c.height) * f64::from(f)).round() as f32;
-            ww >= min_face.min(f32::MAX) && wh >= min_face && ww <= max_face.min(iw as f32) && wh <= max_face.min(ih as f32)
+            ww >= min_face.min(f32::MAX)
+                && wh >= min_face
+                && ww <= max_face.min(iw as f32)
+                && wh <= max_face.min(ih as f32)
         };
         let all: Vec<f32> = all
             .into_iter()
@@ -355,7 +364,8 @@ impl ViolaJones {
                 // Level size from the source image (OpenCV), sampled from the shrunk base.
                 let (lw, lh) = pyramid::level_size(iw, ih, f);
                 let img = base.resize(lw.max(1), lh.max(1));
-                let integral = integral::Integral::with_stride(&img.pixels, img.width, img.height, stride, squared, tilted);
+                let integral =
+                    integral::Integral::with_stride(&img.pixels, img.width, img.height, stride, squared, tilted);
                 Level { scale: f, integral }
             })
             .collect();
@@ -405,7 +415,14 @@ impl ViolaJones {
     pub fn group(hits: &[(Rect, f32)], min_neighbors: usize) -> Vec<CascadeFace> {
         group::group_rectangles(hits, min_neighbors, 0.2)
             .into_iter()
-            .map(|g| CascadeFace { x: g.rect.x, y: g.rect.y, w: g.rect.w, h: g.rect.h, neighbors: g.neighbors, margin: g.margin })
+            .map(|g| CascadeFace {
+                x: g.rect.x,
+                y: g.rect.y,
+                w: g.rect.w,
+                h: g.rect.h,
+                neighbors: g.neighbors,
+                margin: g.margin,
+            })
             .collect()
     }
 
@@ -433,7 +450,12 @@ pub fn merge(names: &[&str], per_cascade: Vec<Vec<CascadeFace>>, params: &Detect
             for f in faces {
                 all.push(Detection {
                     // OpenCV rectangles cover pixels x..x+w−1: inclusive corners.
-                    face_box: FaceBox { x0: f.x as f32, y0: f.y as f32, x1: (f.x + f.w - 1) as f32, y1: (f.y + f.h - 1) as f32 },
+                    face_box: FaceBox {
+                        x0: f.x as f32,
+                        y0: f.y as f32,
+                        x1: (f.x + f.w - 1) as f32,
+                        y1: (f.y + f.h - 1) as f32,
+                    },
                     score: f.neighbors as f32,
                     source: c.to_string(),
                 });

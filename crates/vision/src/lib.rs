@@ -10,9 +10,9 @@
 //! * [`pipeline`] — the whole front end: image → faces.
 
 pub mod crop;
-pub mod face;
 pub mod decode;
 pub mod detect;
+pub mod face;
 pub mod landmarks;
 pub mod onnx;
 pub mod pipeline;

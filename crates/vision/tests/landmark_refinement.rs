@@ -15,7 +15,10 @@ use facerecon_vision::landmarks::box_from_landmarks::BoxFromLandmarks;
 use facerecon_vision::pipeline::FrontEnd;
 
 fn held_out_hog_rows() -> Vec<DlibReference> {
-    read_dlib_reference(&dataset_dir()).into_iter().filter(|r| r.box_kind == "dlib_hog" && !is_trainset(&r.path)).collect()
+    read_dlib_reference(&dataset_dir())
+        .into_iter()
+        .filter(|r| r.box_kind == "dlib_hog" && !is_trainset(&r.path))
+        .collect()
 }
 
 #[test]

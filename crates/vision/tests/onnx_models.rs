@@ -19,12 +19,23 @@ const OPSET: i64 = 13;
 // ---------------------------------------------------------------- graphs
 
 /// Five constant boxes (input pixels, edges, 64×64 input); scores `w·mean(input) + b`.
-const CONST_BOXES: [[f32; 4]; 5] =
-    [[16.0, 16.0, 48.0, 48.0], [18.0, 16.0, 50.0, 48.0], [0.0, 0.0, 8.0, 8.0], [40.0, 0.0, 64.0, 16.0], [4.0, 20.0, 14.0, 30.0]];
+const CONST_BOXES: [[f32; 4]; 5] = [
+    [16.0, 16.0, 48.0, 48.0],
+    [18.0, 16.0, 50.0, 48.0],
+    [0.0, 0.0, 8.0, 8.0],
+    [40.0, 0.0, 64.0, 16.0],
+    [4.0, 20.0, 14.0, 30.0],
+];
 const SCORE_W: [f32; 5] = [3.0, 0.0, 0.0, 0.0, 0.0];
 const SCORE_B: [f32; 5] = [0.0, 0.9, 0.3, 0.7, 0.6];
 
-fn mean_score_detector<const C: usize>(boxes: &[[f32; C]], w: &[f32], b: &[f32], boxes_dims: &[Dim], scores_dims: &[Dim]) -> Graph {
+fn mean_score_detector<const C: usize>(
+    boxes: &[[f32; C]],
+    w: &[f32],
+    b: &[f32],
+    boxes_dims: &[Dim],
+    scores_dims: &[Dim],
+) -> Graph {
     let n = boxes.len() as i64;
     let flat: Vec<f32> = boxes.iter().flatten().copied().collect();
     Graph {
@@ -116,7 +127,11 @@ fn dot_landmarker(side: i64, pixels: bool, conf: f32) -> Graph {
         init_f32("scale", &[1], &[scale]),
         init_i64("pt_shape", &[3], &[1, 1, 2]),
         init_i64("reps", &[3], &[1, 68, 1]),
-        init_f32("offsets", &[1, 68, 2], &point_offsets().iter().map(|o| o * if pixels { side as f32 } else { 1.0 }).collect::<Vec<f32>>()),
+        init_f32(
+            "offsets",
+            &[1, 68, 2],
+            &point_offsets().iter().map(|o| o * if pixels { side as f32 } else { 1.0 }).collect::<Vec<f32>>(),
+        ),
         init_f32("conf_const", &[1, 68], &[conf; 68]),
     ]);
     Graph {
@@ -202,7 +217,9 @@ fn detector_thresholds_suppresses_and_maps_letterboxed_boxes() {
 
     // Threshold and NMS from the config: IoU limit 0.95 keeps both overlapping boxes,
     // threshold 0.65 drops box 4, max_detections 1 keeps the best only.
-    let loose = detector(&const_detector(), OnnxDetectorConfig { nms_iou: 0.95, score_threshold: 0.65, ..det_config() }).unwrap();
+    let loose =
+        detector(&const_detector(), OnnxDetectorConfig { nms_iou: 0.95, score_threshold: 0.65, ..det_config() })
+            .unwrap();
     let found = loose.detect(&tinted).unwrap();
     let scores: Vec<f32> = found.iter().map(|d| d.score).collect();
     assert_eq!(found.len(), 2, "{found:?}");
@@ -220,7 +237,13 @@ fn detector_thresholds_suppresses_and_maps_letterboxed_boxes() {
 #[test]
 fn detector_with_dynamic_input_stretch_and_normalised_boxes() {
     require_ort!();
-    let mut g = mean_score_detector(&[[0.25, 0.5, 0.75, 1.0]], &[0.0], &[0.8], &[Fixed(1), Named("N"), Fixed(4)], &[Fixed(1), Named("N")]);
+    let mut g = mean_score_detector(
+        &[[0.25, 0.5, 0.75, 1.0]],
+        &[0.0],
+        &[0.8],
+        &[Fixed(1), Named("N"), Fixed(4)],
+        &[Fixed(1), Named("N")],
+    );
     g.inputs = vec![value("image", FLOAT, &[Named("batch"), Fixed(3), Named("h"), Named("w")])];
     g.initializers[0] = init_f32("box_const", &[1, 1, 4], &[0.25, 0.5, 0.75, 1.0]);
     g.initializers[2] = init_f32("b", &[1, 1], &[0.8]);
@@ -319,7 +342,8 @@ fn detector_reports_bad_outputs_at_run_time() {
     // as declared, so this one is only known at run time): [1, H, W] = [1, 2, 3].
     let mut g = const_detector();
     g.inputs = vec![value("image", FLOAT, &[Fixed(1), Fixed(3), Named("h"), Named("w")])];
-    g.nodes[3] = node("ReduceMean", &["image"], &["boxes"]).attr("axes", Attr::Ints(vec![1])).attr("keepdims", Attr::Int(0));
+    g.nodes[3] =
+        node("ReduceMean", &["image"], &["boxes"]).attr("axes", Attr::Ints(vec![1])).attr("keepdims", Attr::Int(0));
     g.outputs[0] = value_unknown_shape("boxes", FLOAT);
     let det = detector(&g, OnnxDetectorConfig { input_size: Some([3, 2]), ..det_config() }).unwrap();
     let e = det.detect(&photo).unwrap_err();
@@ -369,8 +393,11 @@ fn detector_from_a_config_file() {
     std::fs::create_dir_all(&dir).unwrap();
     std::fs::write(dir.join("det.onnx"), const_detector().to_model(OPSET)).unwrap();
     let file = dir.join("detector.json");
-    std::fs::write(&file, r#"{ "model": "det.onnx", "score_threshold": 0.65, "pixels": { "order": "bgr", "std": [255, 255, 255] } }"#)
-        .unwrap();
+    std::fs::write(
+        &file,
+        r#"{ "model": "det.onnx", "score_threshold": 0.65, "pixels": { "order": "bgr", "std": [255, 255, 255] } }"#,
+    )
+    .unwrap();
     let config = OnnxDetectorConfig::from_json_file(&file).unwrap();
     assert_eq!(config.model, dir.join("det.onnx"));
     assert_eq!(config.score_threshold, 0.65);
@@ -395,7 +422,11 @@ fn detector_from_a_config_file() {
 fn spot_case() -> (RgbImage, Detection) {
     let mut photo = RgbImage::new(200, 200);
     photo.put_pixel(80, 120, Rgb([255, 255, 255]));
-    let face = Detection { face_box: FaceBox { x0: 60.0, y0: 100.0, x1: 99.0, y1: 139.0 }, score: 1.0, source: "given".into() };
+    let face = Detection {
+        face_box: FaceBox { x0: 60.0, y0: 100.0, x1: 99.0, y1: 139.0 },
+        score: 1.0,
+        source: "given".into(),
+    };
     (photo, face)
 }
 
@@ -411,7 +442,8 @@ fn assert_spot_points(points: &[[f32; 2]]) {
 fn landmarker_maps_crop_points_back_to_photo_pixels() {
     require_ort!();
     let (photo, face) = spot_case();
-    let lm = landmarker(&dot_landmarker(32, false, 0.75), OnnxLandmarkerConfig { crop_scale: 1.6, ..lm_config() }).unwrap();
+    let lm =
+        landmarker(&dot_landmarker(32, false, 0.75), OnnxLandmarkerConfig { crop_scale: 1.6, ..lm_config() }).unwrap();
     assert_eq!(lm.input_size(), 32);
     let out = lm.predict(&photo, &face).unwrap();
     assert_spot_points(&out.points);
@@ -438,8 +470,10 @@ fn landmarker_crop_past_the_border() {
     // Box over pixels 0..=9 × 0..=9, centre (4.5, 4.5), crop_scale 3.2 → side 32,
     // left = top = −11.5; 32² input → 1 px per px, input pixel u centred at u − 11:
     // the spot (2, 3) is input pixel (13, 14) → fraction (13.5/32, 14.5/32) → photo (2, 3).
-    let face = Detection { face_box: FaceBox { x0: 0.0, y0: 0.0, x1: 9.0, y1: 9.0 }, score: 1.0, source: "given".into() };
-    let lm = landmarker(&dot_landmarker(32, false, 1.0), OnnxLandmarkerConfig { crop_scale: 3.2, ..lm_config() }).unwrap();
+    let face =
+        Detection { face_box: FaceBox { x0: 0.0, y0: 0.0, x1: 9.0, y1: 9.0 }, score: 1.0, source: "given".into() };
+    let lm =
+        landmarker(&dot_landmarker(32, false, 1.0), OnnxLandmarkerConfig { crop_scale: 3.2, ..lm_config() }).unwrap();
     let out = lm.predict(&photo, &face).unwrap();
     assert!((out.points[0][0] - 2.0).abs() < 1e-4 && (out.points[0][1] - 3.0).abs() < 1e-4, "{:?}", out.points[0]);
 }
@@ -480,7 +514,8 @@ fn landmarker_refuses_bad_models_and_outputs() {
     assert!(e.to_string().contains("outside [0, 1]"), "{e}");
     // NaN points.
     let mut g = dot_landmarker(32, false, 1.0);
-    let nan_offsets: Vec<f32> = point_offsets().iter().enumerate().map(|(i, &v)| if i == 7 { f32::NAN } else { v }).collect();
+    let nan_offsets: Vec<f32> =
+        point_offsets().iter().enumerate().map(|(i, &v)| if i == 7 { f32::NAN } else { v }).collect();
     g.initializers.retain(|t| t.name != "offsets");
     g.initializers.push(init_f32("offsets", &[1, 68, 2], &nan_offsets));
     let lm = landmarker(&g, lm_config()).unwrap();

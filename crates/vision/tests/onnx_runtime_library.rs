@@ -42,7 +42,10 @@ fn library_resolution_order_and_errors() {
     assert!(e.to_string().contains("runtime.library") && e.to_string().contains("install-onnxruntime"), "{e}");
 
     // Loading a model with a missing library: a clear error before any runtime call.
-    let config = OnnxDetectorConfig { runtime: OnnxRuntimeConfig { library: Some(missing.clone()), ..Default::default() }, ..Default::default() };
+    let config = OnnxDetectorConfig {
+        runtime: OnnxRuntimeConfig { library: Some(missing.clone()), ..Default::default() },
+        ..Default::default()
+    };
     let e = OnnxDetector::from_bytes(config, b"not read", "m").unwrap_err();
     assert!(matches!(e, OnnxError::RuntimeNotFound { .. }), "{e}");
     // A file that is no shared library: the loader's reason, and the hint.

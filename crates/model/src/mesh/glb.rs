@@ -111,8 +111,10 @@ pub fn write_glb<W: Write>(mesh: &Mesh, mut out: W) -> Result<(), ExportError> {
         bin.push(0);
     }
     let total = 12 + 8 + json_bytes.len() + 8 + bin.len();
-    let total = u32::try_from(total)
-        .map_err(|_| ExportError::TooLarge { format: "glTF", what: format!("{total} bytes exceed the 4 GiB limit of .glb") })?;
+    let total = u32::try_from(total).map_err(|_| ExportError::TooLarge {
+        format: "glTF",
+        what: format!("{total} bytes exceed the 4 GiB limit of .glb"),
+    })?;
 
     let mut header = Vec::with_capacity(28);
     for word in [GLB_MAGIC, 2, total, json_bytes.len() as u32, CHUNK_JSON] {

@@ -67,10 +67,7 @@ pub fn write_obj<W: Write>(mesh: &Mesh, out: W, mtl_file_name: Option<&str>) -> 
 /// Writes the material library for [`write_obj`]: a white diffuse material, so that the
 /// vertex colours carry the colour.
 pub fn write_mtl<W: Write>(mut out: W) -> Result<(), ExportError> {
-    write!(
-        out,
-        "# facerecon material\nnewmtl {MATERIAL_NAME}\nKa 0 0 0\nKd 1 1 1\nKs 0 0 0\nNs 10\nd 1\nillum 1\n"
-    )?;
+    write!(out, "# facerecon material\nnewmtl {MATERIAL_NAME}\nKa 0 0 0\nKd 1 1 1\nKs 0 0 0\nNs 10\nd 1\nillum 1\n")?;
     out.flush()?;
     Ok(())
 }
@@ -135,10 +132,9 @@ mod tests {
         let text = String::from_utf8(obj.clone()).unwrap();
         assert!(text.contains("\nf 1//1 2//2 3//3\n"), "{}", &text[..200]);
         assert!(!text.contains("mtllib") && !text.contains("usemtl") && !text.contains("\nvt "));
-        let (models, _) = tobj::load_obj_buf(&mut &obj[..], &tobj::LoadOptions::default(), |_| {
-            Err(tobj::LoadError::OpenFileFailed)
-        })
-        .unwrap();
+        let (models, _) =
+            tobj::load_obj_buf(&mut &obj[..], &tobj::LoadOptions::default(), |_| Err(tobj::LoadError::OpenFileFailed))
+                .unwrap();
         assert!(models[0].mesh.vertex_color.is_empty());
         assert_eq!(models[0].mesh.normal_indices.len(), mesh.triangles.len() * 3);
     }

@@ -41,43 +41,25 @@ impl QuantizedBasis {
     /// Quantises the first `len` values of each of the `modes` modes of `basis` (modes
     /// `stride` apart; a validated model's basis holds `modes × stride` values).
     pub(crate) fn new(basis: &[f32], modes: usize, stride: usize, len: usize) -> Self {
-        assert!(
-            len <= stride && basis.len() >= modes * stride,
-            "basis of {} values",
-            basis.len()
-        );
+        assert!(len <= stride && basis.len() >= modes * stride, "basis of {} values", basis.len());
         let mut values = Vec::with_capacity(modes * len);
         let mut scales = Vec::with_capacity(modes);
         for k in 0..modes {
             let mode = &basis[k * stride..k * stride + len];
             let max = mode.iter().fold(0.0f32, |m, x| m.max(x.abs()));
             // Validated models hold finite values; a zero mode stays exactly zero.
-            let scale = if max > 0.0 && max.is_finite() {
-                max / Q_MAX
-            } else {
-                0.0
-            };
+            let scale = if max > 0.0 && max.is_finite() { max / Q_MAX } else { 0.0 };
             let inv = if scale > 0.0 { 1.0 / scale } else { 0.0 };
-            values.extend(
-                mode.iter()
-                    .map(|x| (x * inv).round().clamp(-Q_MAX, Q_MAX) as i16),
-            );
+            values.extend(mode.iter().map(|x| (x * inv).round().clamp(-Q_MAX, Q_MAX) as i16));
             scales.push(scale);
         }
-        Self {
-            len,
-            values,
-            scales,
-        }
+        Self { len, values, scales }
     }
 
     /// Largest deviation of `Σ w_k·mode_k` from the same sum over the f32 basis, from
     /// quantisation alone (f32 rounding of the sum comes on top, as in the f32 path).
     pub(crate) fn error_bound(&self, w: &[f32]) -> f32 {
-        w.iter()
-            .zip(&self.scales)
-            .map(|(w, s)| STEP_ERROR * w.abs() * s)
-            .sum()
+        w.iter().zip(&self.scales).map(|(w, s)| STEP_ERROR * w.abs() * s).sum()
     }
 
     /// The f32 value of one step of mode `k`.
@@ -135,8 +117,7 @@ fn accumulate_generic(b: &QuantizedBasis, acc: &mut [f32], offset: usize, w: &[f
             let [(k0, c0), (k1, c1), (k2, c2), (k3, c3)] = group;
             let (m0, m1, m2, m3) = (mode(k0), mode(k1), mode(k2), mode(k3));
             for i in 0..n {
-                acc[i] +=
-                    c0 * m0[i] as f32 + c1 * m1[i] as f32 + c2 * m2[i] as f32 + c3 * m3[i] as f32;
+                acc[i] += c0 * m0[i] as f32 + c1 * m1[i] as f32 + c2 * m2[i] as f32 + c3 * m3[i] as f32;
             }
             len = 0;
         }
@@ -167,19 +148,10 @@ mod tests {
 
     /// Plain f64 sum over the f32 basis (the reference), and the sum of the terms' magnitudes
     /// (for the f32 rounding allowance).
-    fn reference(
-        basis: &[f32],
-        stride: usize,
-        n: usize,
-        offset: usize,
-        w: &[f32],
-    ) -> Vec<(f64, f64)> {
+    fn reference(basis: &[f32], stride: usize, n: usize, offset: usize, w: &[f32]) -> Vec<(f64, f64)> {
         (0..n)
             .map(|i| {
-                let terms = w
-                    .iter()
-                    .enumerate()
-                    .map(|(k, &wk)| wk as f64 * basis[k * stride + offset + i] as f64);
+                let terms = w.iter().enumerate().map(|(k, &wk)| wk as f64 * basis[k * stride + offset + i] as f64);
                 (terms.clone().sum(), terms.map(f64::abs).sum())
             })
             .collect()
@@ -192,11 +164,7 @@ mod tests {
         let (modes, stride, len) = (11, 1001, 999);
         let mut basis = Vec::new();
         for k in 0..modes {
-            let amp = if k == 5 {
-                0.0
-            } else {
-                10f32.powi(k as i32 % 4 - 1)
-            };
+            let amp = if k == 5 { 0.0 } else { 10f32.powi(k as i32 % 4 - 1) };
             basis.extend(values(k as u64 + 1, stride, amp));
         }
         let q = QuantizedBasis::new(&basis, modes, stride, len);
@@ -212,10 +180,7 @@ mod tests {
                     // On top of the bound: f32 rounding of an 11-term sum (< 12 ULPs of the
                     // largest partial sum).
                     let err = (*a as f64 - b).abs();
-                    assert!(
-                        err <= bound + 12.0 * f32::EPSILON as f64 * mag,
-                        "seed {seed} value {i}: {err} > {bound}"
-                    );
+                    assert!(err <= bound + 12.0 * f32::EPSILON as f64 * mag, "seed {seed} value {i}: {err} > {bound}");
                 }
             }
         }

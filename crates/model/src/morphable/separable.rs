@@ -42,14 +42,7 @@ impl SeparableBasis {
             let field: Vec<f32> = (0..n).map(|v| mode[3 * v + c0]).collect();
             let ss: f64 = field.iter().map(|&s| s as f64 * s as f64).sum();
             let colour: [f64; 3] = std::array::from_fn(|c| {
-                if ss > 0.0 {
-                    (0..n)
-                        .map(|v| mode[3 * v + c] as f64 * field[v] as f64)
-                        .sum::<f64>()
-                        / ss
-                } else {
-                    0.0
-                }
+                if ss > 0.0 { (0..n).map(|v| mode[3 * v + c] as f64 * field[v] as f64).sum::<f64>() / ss } else { 0.0 }
             });
             let mut residual = 0.0f64;
             for (v, &s) in field.iter().enumerate() {
@@ -65,11 +58,7 @@ impl SeparableBasis {
             // The colour rounded to f32 adds at most |s|·|Δe| ≤ max·2⁻²⁴·|e|.
             residuals.push((residual + maxes[c0] as f64 * 1e-7) as f32);
         }
-        Some(Self {
-            fields: QuantizedBasis::new(&fields, modes, n, n),
-            colours,
-            residuals,
-        })
+        Some(Self { fields: QuantizedBasis::new(&fields, modes, n, n), colours, residuals })
     }
 
     /// Largest deviation of `Σ w_k·mode_k` from the same sum over the f32 basis.
@@ -189,10 +178,7 @@ mod tests {
         let basis = separable(modes, n);
         let b = SeparableBasis::try_new(&basis, modes, n).expect("separable");
         for seed in 0..10 {
-            let mut w = values(50 + seed, modes)
-                .iter()
-                .map(|x| x * 3.0)
-                .collect::<Vec<_>>();
+            let mut w = values(50 + seed, modes).iter().map(|x| x * 3.0).collect::<Vec<_>>();
             w[seed as usize % modes] = 0.0;
             let mut acc = vec![[0.25f32; 3]; n];
             b.accumulate(&mut acc, &w);
@@ -200,15 +186,10 @@ mod tests {
             assert!(bound > 0.0 && bound < 1e-4);
             for v in 0..n {
                 for c in 0..3 {
-                    let want: f64 = 0.25
-                        + (0..modes)
-                            .map(|k| w[k] as f64 * basis[(k * n + v) * 3 + c] as f64)
-                            .sum::<f64>();
+                    let want: f64 =
+                        0.25 + (0..modes).map(|k| w[k] as f64 * basis[(k * n + v) * 3 + c] as f64).sum::<f64>();
                     let err = (acc[v][c] as f64 - want).abs();
-                    assert!(
-                        err <= bound + 1e-6,
-                        "seed {seed} vertex {v}: {err} > {bound}"
-                    );
+                    assert!(err <= bound + 1e-6, "seed {seed} vertex {v}: {err} > {bound}");
                 }
             }
         }

@@ -37,12 +37,7 @@ impl FoldedLight {
 }
 
 /// `out[j] = albedo[j] ⊙ (w'ᵀ p(normals[j]))`; all three slices have the same length.
-pub(super) fn shade_rows(
-    light: &FoldedLight,
-    albedo: &[[f32; 3]],
-    normals: &[[f32; 3]],
-    out: &mut [[f32; 3]],
-) {
+pub(super) fn shade_rows(light: &FoldedLight, albedo: &[[f32; 3]], normals: &[[f32; 3]], out: &mut [[f32; 3]]) {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU supports AVX2 (checked just above).
@@ -55,27 +50,13 @@ pub(super) fn shade_rows(
 /// The same loop with 256-bit vectors; no FMA contraction, so results equal the baseline build.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn shade_rows_avx2(
-    light: &FoldedLight,
-    albedo: &[[f32; 3]],
-    normals: &[[f32; 3]],
-    out: &mut [[f32; 3]],
-) {
+fn shade_rows_avx2(light: &FoldedLight, albedo: &[[f32; 3]], normals: &[[f32; 3]], out: &mut [[f32; 3]]) {
     shade_rows_generic(light, albedo, normals, out)
 }
 
 #[inline(always)]
-fn shade_rows_generic(
-    light: &FoldedLight,
-    albedo: &[[f32; 3]],
-    normals: &[[f32; 3]],
-    out: &mut [[f32; 3]],
-) {
-    for ((o, a), nrm) in out
-        .chunks_mut(BLOCK)
-        .zip(albedo.chunks(BLOCK))
-        .zip(normals.chunks(BLOCK))
-    {
+fn shade_rows_generic(light: &FoldedLight, albedo: &[[f32; 3]], normals: &[[f32; 3]], out: &mut [[f32; 3]]) {
+    for ((o, a), nrm) in out.chunks_mut(BLOCK).zip(albedo.chunks(BLOCK)).zip(normals.chunks(BLOCK)) {
         let m = o.len().min(a.len()).min(nrm.len());
         let (mut x, mut y, mut z) = ([0.0f32; BLOCK], [0.0f32; BLOCK], [0.0f32; BLOCK]);
         for i in 0..m {
@@ -102,9 +83,7 @@ mod tests {
         if !std::arch::is_x86_feature_detected!("avx2") {
             return;
         }
-        let light = FoldedLight::new(&std::array::from_fn(|k| {
-            [0.5, -0.25, 1.0].map(|c: f32| c / (1 + k) as f32)
-        }));
+        let light = FoldedLight::new(&std::array::from_fn(|k| [0.5, -0.25, 1.0].map(|c: f32| c / (1 + k) as f32)));
         let normals: Vec<[f32; 3]> = (0..37)
             .map(|i| {
                 let t = i as f32 * 0.37;

@@ -8,10 +8,7 @@ use facerecon_raster::{BACKGROUND, RenderJob, VisibilityBuffer};
 pub struct Rng(pub u64);
 impl Rng {
     pub fn next(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
+        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
         (self.0 >> 11) as f64 / (1u64 << 53) as f64
     }
     pub fn range(&mut self, a: f64, b: f64) -> f32 {
@@ -42,22 +39,10 @@ impl Scene {
 }
 
 fn finish(positions: Vec<[f32; 3]>, triangles: Vec<[u32; 3]>, rng: &mut Rng) -> Scene {
-    let colors = (0..positions.len())
-        .map(|_| {
-            [
-                rng.range(0.0, 1.0),
-                rng.range(0.0, 1.0),
-                rng.range(0.0, 1.0),
-            ]
-        })
-        .collect();
+    let colors =
+        (0..positions.len()).map(|_| [rng.range(0.0, 1.0), rng.range(0.0, 1.0), rng.range(0.0, 1.0)]).collect();
     let normals = vertex_normals(&positions, &triangles);
-    Scene {
-        positions,
-        triangles,
-        colors,
-        normals,
-    }
+    Scene { positions, triangles, colors, normals }
 }
 
 /// Random, overlapping and interpenetrating triangles in front of the camera; with
@@ -67,26 +52,14 @@ pub fn random_triangles(seed: u64, count: usize, near_crossing: bool) -> Scene {
     let mut p = Vec::new();
     let mut t = Vec::new();
     for k in 0..count {
-        let c = [
-            rng.range(-40.0, 40.0),
-            rng.range(-40.0, 40.0),
-            rng.range(-320.0, -200.0),
-        ];
+        let c = [rng.range(-40.0, 40.0), rng.range(-40.0, 40.0), rng.range(-320.0, -200.0)];
         for _ in 0..3 {
-            p.push([
-                c[0] + rng.range(-35.0, 35.0),
-                c[1] + rng.range(-35.0, 35.0),
-                c[2] + rng.range(-40.0, 40.0),
-            ]);
+            p.push([c[0] + rng.range(-35.0, 35.0), c[1] + rng.range(-35.0, 35.0), c[2] + rng.range(-40.0, 40.0)]);
         }
         if near_crossing && k % 5 == 0 {
             // One corner near or behind the camera.
             let last = p.len() - 1;
-            p[last] = [
-                rng.range(-3.0, 3.0),
-                rng.range(-3.0, 3.0),
-                rng.range(-2.0, 4.0),
-            ];
+            p[last] = [rng.range(-3.0, 3.0), rng.range(-3.0, 3.0), rng.range(-2.0, 4.0)];
         }
         let b = (3 * k) as u32;
         t.push([b, b + 1, b + 2]);
@@ -157,8 +130,7 @@ pub fn ray_hit(job: &RenderJob, clip: &[[f64; 4]; 3], x: u32, y: u32) -> Option<
         [1.0; 3],
     ];
     let det3 = |m: &[[f64; 3]; 3]| {
-        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
-            - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
             + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
     };
     let d = det3(&a);
@@ -183,9 +155,7 @@ pub fn ray_hit(job: &RenderJob, clip: &[[f64; 4]; 3], x: u32, y: u32) -> Option<
                 (1.0 - clip[i][1] / clip[i][3]) * 0.5 * job.height as f64,
             ]
         });
-        let area2 = ((s[1][0] - s[0][0]) * (s[2][1] - s[0][1])
-            - (s[1][1] - s[0][1]) * (s[2][0] - s[0][0]))
-            .abs();
+        let area2 = ((s[1][0] - s[0][0]) * (s[2][1] - s[0][1]) - (s[1][1] - s[0][1]) * (s[2][0] - s[0][0])).abs();
         let lw: [f64; 3] = std::array::from_fn(|i| beta[i] * clip[i][3]);
         let sum: f64 = lw.iter().sum();
         (0..3)
@@ -198,21 +168,14 @@ pub fn ray_hit(job: &RenderJob, clip: &[[f64; 4]; 3], x: u32, y: u32) -> Option<
     } else {
         beta.iter().cloned().fold(f64::INFINITY, f64::min) * 10.0
     };
-    Some(Hit {
-        beta,
-        z: cz / cw,
-        inside,
-        margin,
-    })
+    Some(Hit { beta, z: cz / cw, inside, margin })
 }
 
 fn clip_of(job: &RenderJob, t: usize) -> [[f64; 4]; 3] {
     let m = job.camera.projection_zo();
     std::array::from_fn(|k| {
         let p = job.positions[job.triangles[t][k] as usize];
-        (m * glam::Vec3::from(p).extend(1.0))
-            .to_array()
-            .map(|v| v as f64)
+        (m * glam::Vec3::from(p).extend(1.0)).to_array().map(|v| v as f64)
     })
 }
 
@@ -232,13 +195,7 @@ pub fn oracle(job: &RenderJob) -> Oracle {
             let mut best: Option<(usize, [f64; 3], f64, f64)> = None;
             let mut second = f64::INFINITY;
             for (t, clip) in clips.iter().enumerate() {
-                if let Some(Hit {
-                    beta: b,
-                    z,
-                    inside: true,
-                    margin: m,
-                }) = ray_hit(job, clip, x, y)
-                {
+                if let Some(Hit { beta: b, z, inside: true, margin: m }) = ray_hit(job, clip, x, y) {
                     match best {
                         Some((_, _, bz, _)) if z >= bz => second = second.min(z),
                         _ => {
@@ -254,9 +211,7 @@ pub fn oracle(job: &RenderJob) -> Oracle {
                 o.vb.triangle[i] = t as u32;
                 o.vb.bary[i] = [b[0] as f32, b[1] as f32];
                 let tri = job.triangles[t];
-                o.vb.depth[i] = -(0..3)
-                    .map(|k| b[k] * job.positions[tri[k] as usize][2] as f64)
-                    .sum::<f64>() as f32;
+                o.vb.depth[i] = -(0..3).map(|k| b[k] * job.positions[tri[k] as usize][2] as f64).sum::<f64>() as f32;
                 o.edge_margin[i] = m;
                 o.depth_gap[i] = second - z;
             }
@@ -271,9 +226,7 @@ pub fn margin_of(job: &RenderJob, t: u32, x: u32, y: u32) -> f64 {
     if t == BACKGROUND {
         return f64::INFINITY;
     }
-    ray_hit(job, &clip_of(job, t as usize), x, y)
-        .map(|h| h.margin.abs())
-        .unwrap_or(0.0)
+    ray_hit(job, &clip_of(job, t as usize), x, y).map(|h| h.margin.abs()).unwrap_or(0.0)
 }
 
 /// Disagreeing pixels `(x, y, oracle id, got id)`, the largest barycentric difference
@@ -283,13 +236,7 @@ pub type Comparison = (Vec<(u32, u32, u32, u32)>, f32, usize);
 /// Pixels where `got` disagrees with the oracle although the oracle's answer is decisive
 /// (edge margins of both candidates > `tol_px`, depth gap > `tol_z`), and the largest
 /// barycentric difference where they agree.
-pub fn compare(
-    job: &RenderJob,
-    o: &Oracle,
-    got: &VisibilityBuffer,
-    tol_px: f64,
-    tol_z: f64,
-) -> Comparison {
+pub fn compare(job: &RenderJob, o: &Oracle, got: &VisibilityBuffer, tol_px: f64, tol_z: f64) -> Comparison {
     let mut bad = Vec::new();
     let mut max_bary = 0f32;
     let mut compared = 0;
@@ -297,9 +244,7 @@ pub fn compare(
         for x in 0..job.width {
             let i = (y * job.width + x) as usize;
             let (want, have) = (o.vb.triangle[i], got.triangle[i]);
-            let decisive = o.edge_margin[i] > tol_px
-                && o.depth_gap[i] > tol_z
-                && margin_of(job, have, x, y) > tol_px;
+            let decisive = o.edge_margin[i] > tol_px && o.depth_gap[i] > tol_z && margin_of(job, have, x, y) > tol_px;
             if !decisive {
                 continue;
             }
@@ -322,10 +267,7 @@ pub type Mesh = (Vec<[f32; 3]>, Vec<[u32; 3]>, Vec<[f32; 3]>);
 /// UV sphere of radius `r` at `center` with exact (analytic) vertex normals.
 pub fn sphere(r: f32, center: [f32; 3], rings: usize, segs: usize) -> Mesh {
     let (dirs, t) = facerecon_model::mesh::uv_sphere(rings, segs);
-    let p = dirs
-        .iter()
-        .map(|d| [center[0] + r * d[0], center[1] + r * d[1], center[2] + r * d[2]])
-        .collect();
+    let p = dirs.iter().map(|d| [center[0] + r * d[0], center[1] + r * d[1], center[2] + r * d[2]]).collect();
     (p, t, dirs)
 }
 

@@ -57,10 +57,7 @@ impl Decompressor {
             Some((_, rest)) => rest.to_string(),
             None => msg,
         };
-        DecodeError::Corrupt {
-            format: "JPEG".into(),
-            reason,
-        }
+        DecodeError::Corrupt { format: "JPEG".into(), reason }
     }
 }
 
@@ -76,24 +73,13 @@ impl Drop for Decompressor {
 /// Decodes JPEG bytes (already checked against `limits.max_encoded_bytes`) into RGB,
 /// the EXIF orientation applied.
 pub(super) fn decode(bytes: &[u8], limits: &DecodeLimits) -> Result<RgbImage, DecodeError> {
-    let len = c_ulong::try_from(bytes.len()).map_err(|_| DecodeError::EncodedTooLarge {
-        bytes: bytes.len(),
-        limit: limits.max_encoded_bytes,
-    })?;
+    let len = c_ulong::try_from(bytes.len())
+        .map_err(|_| DecodeError::EncodedTooLarge { bytes: bytes.len(), limit: limits.max_encoded_bytes })?;
     let d = Decompressor::new()?;
-    let (mut width, mut height, mut subsamp, mut colorspace) =
-        (0 as c_int, 0 as c_int, 0 as c_int, 0 as c_int);
+    let (mut width, mut height, mut subsamp, mut colorspace) = (0 as c_int, 0 as c_int, 0 as c_int, 0 as c_int);
     // SAFETY: `bytes` outlives the call and `len` is its length; the out-pointers are valid.
     let rc = unsafe {
-        tj::tjDecompressHeader3(
-            d.0,
-            bytes.as_ptr(),
-            len,
-            &mut width,
-            &mut height,
-            &mut subsamp,
-            &mut colorspace,
-        )
+        tj::tjDecompressHeader3(d.0, bytes.as_ptr(), len, &mut width, &mut height, &mut subsamp, &mut colorspace)
     };
     // A warning while reading the header (e.g. data ending inside it) is fatal only when no
     // image size came out of it.
@@ -101,39 +87,22 @@ pub(super) fn decode(bytes: &[u8], limits: &DecodeLimits) -> Result<RgbImage, De
         return Err(d.last_error());
     }
     // libjpeg limits dimensions to 65500, so these are positive and fit in u32.
-    let (w, h) = (
-        u32::try_from(width).unwrap_or(0),
-        u32::try_from(height).unwrap_or(0),
-    );
+    let (w, h) = (u32::try_from(width).unwrap_or(0), u32::try_from(height).unwrap_or(0));
     if w == 0 || h == 0 {
-        return Err(DecodeError::ZeroSize {
-            width: w,
-            height: h,
-        });
+        return Err(DecodeError::ZeroSize { width: w, height: h });
     }
     let pixels = u64::from(w) * u64::from(h);
     if pixels > limits.max_pixels {
-        return Err(DecodeError::TooManyPixels {
-            width: w,
-            height: h,
-            pixels,
-            limit: limits.max_pixels,
-        });
+        return Err(DecodeError::TooManyPixels { width: w, height: h, pixels, limit: limits.max_pixels });
     }
 
     // CMYK and YCCK (Adobe) JPEGs: libjpeg converts YCCK → CMYK but not CMYK → RGB; the
     // conversion below is the one the `image` crate applies (Adobe's inverted CMYK).
-    let cmyk =
-        colorspace == tj::TJCS_TJCS_CMYK as c_int || colorspace == tj::TJCS_TJCS_YCCK as c_int;
-    let (format, channels) = if cmyk {
-        (tj::TJPF_TJPF_CMYK, 4)
-    } else {
-        (tj::TJPF_TJPF_RGB, 3)
-    };
+    let cmyk = colorspace == tj::TJCS_TJCS_CMYK as c_int || colorspace == tj::TJCS_TJCS_YCCK as c_int;
+    let (format, channels) = if cmyk { (tj::TJPF_TJPF_CMYK, 4) } else { (tj::TJPF_TJPF_RGB, 3) };
     let size = usize::try_from(pixels * channels).map_err(|_| too_much_memory(pixels))?;
     let mut buf = Vec::new();
-    buf.try_reserve_exact(size)
-        .map_err(|_| too_much_memory(pixels))?;
+    buf.try_reserve_exact(size).map_err(|_| too_much_memory(pixels))?;
     buf.resize(size, 0u8);
     // Default flags = OpenCV's settings: ISLOW IDCT, fancy upsampling, top-down rows. The
     // scan limit refuses progressive files with more than 500 scans (a CPU-time bomb: each
@@ -165,10 +134,7 @@ pub(super) fn decode(bytes: &[u8], limits: &DecodeLimits) -> Result<RgbImage, De
 }
 
 fn too_much_memory(pixels: u64) -> DecodeError {
-    DecodeError::AllocationLimit {
-        format: "JPEG".into(),
-        reason: format!("no memory for {pixels} pixels"),
-    }
+    DecodeError::AllocationLimit { format: "JPEG".into(), reason: format!("no memory for {pixels} pixels") }
 }
 
 /// Adobe CMYK as libjpeg returns it (stored inverted: 255 = no ink) → RGB, each channel
@@ -178,9 +144,7 @@ fn cmyk_to_rgb(cmyk: &[u8]) -> Vec<u8> {
         let t = u32::from(a) * u32::from(k) + 128;
         (((t >> 8) + t) >> 8) as u8
     };
-    cmyk.chunks_exact(4)
-        .flat_map(|p| [mul(p[0], p[3]), mul(p[1], p[3]), mul(p[2], p[3])])
-        .collect()
+    cmyk.chunks_exact(4).flat_map(|p| [mul(p[0], p[3]), mul(p[1], p[3]), mul(p[2], p[3])]).collect()
 }
 
 /// The EXIF orientation of a JPEG: the first APP1 segment holding "Exif\0\0" before the
@@ -199,7 +163,7 @@ fn exif_orientation(bytes: &[u8]) -> Option<Orientation> {
         let marker = *bytes.get(pos)?;
         pos += 1;
         match marker {
-            0xDA | 0xD9 => return None, // start of scan / end of image: no EXIF before the pixels
+            0xDA | 0xD9 => return None,     // start of scan / end of image: no EXIF before the pixels
             0x01 | 0xD0..=0xD7 => continue, // standalone markers, no length
             _ => {}
         }
@@ -220,14 +184,7 @@ mod tests {
     use crate::decode::decode;
 
     /// Encodes `pixels` (in `pf` layout) with libjpeg-turbo's encoder at quality 100.
-    fn tj_compress(
-        pixels: &[u8],
-        w: i32,
-        h: i32,
-        pf: tj::TJPF,
-        subsamp: tj::TJSAMP,
-        flags: u32,
-    ) -> Vec<u8> {
+    fn tj_compress(pixels: &[u8], w: i32, h: i32, pf: tj::TJPF, subsamp: tj::TJSAMP, flags: u32) -> Vec<u8> {
         // SAFETY: test helper; `pixels` holds w × h pixels of `pf`, TurboJPEG allocates the
         // output, copied out and freed with tjFree.
         unsafe {
@@ -266,11 +223,7 @@ mod tests {
 
     fn max_diff(a: &[u8], b: &[u8]) -> u8 {
         assert_eq!(a.len(), b.len());
-        a.iter()
-            .zip(b)
-            .map(|(x, y)| x.abs_diff(*y))
-            .max()
-            .unwrap_or(0)
+        a.iter().zip(b).map(|(x, y)| x.abs_diff(*y)).max().unwrap_or(0)
     }
 
     #[test]
@@ -278,37 +231,18 @@ mod tests {
         // Progressive coding rearranges the same quantised coefficients: identical output.
         let src = gradient(37, 23, 3);
         let base = tj_compress(&src, 37, 23, tj::TJPF_TJPF_RGB, tj::TJSAMP_TJSAMP_420, 0);
-        let prog = tj_compress(
-            &src,
-            37,
-            23,
-            tj::TJPF_TJPF_RGB,
-            tj::TJSAMP_TJSAMP_420,
-            tj::TJFLAG_PROGRESSIVE,
-        );
+        let prog = tj_compress(&src, 37, 23, tj::TJPF_TJPF_RGB, tj::TJSAMP_TJSAMP_420, tj::TJFLAG_PROGRESSIVE);
         assert_ne!(base, prog);
         let (a, b) = (decode(&base).unwrap(), decode(&prog).unwrap());
         assert_eq!(a.dimensions(), (37, 23));
         assert_eq!(a, b);
-        assert!(
-            max_diff(a.as_raw(), &src) <= 6,
-            "{}",
-            max_diff(a.as_raw(), &src)
-        );
+        assert!(max_diff(a.as_raw(), &src) <= 6, "{}", max_diff(a.as_raw(), &src));
     }
 
     #[test]
     fn grey_jpeg_is_replicated() {
         let src = gradient(16, 9, 1);
-        let out = decode(&tj_compress(
-            &src,
-            16,
-            9,
-            tj::TJPF_TJPF_GRAY,
-            tj::TJSAMP_TJSAMP_GRAY,
-            0,
-        ))
-        .unwrap();
+        let out = decode(&tj_compress(&src, 16, 9, tj::TJPF_TJPF_GRAY, tj::TJSAMP_TJSAMP_GRAY, 0)).unwrap();
         for (p, g) in out.pixels().zip(&src) {
             assert_eq!(p.0[0], p.0[1]);
             assert_eq!(p.0[1], p.0[2]);
@@ -320,26 +254,12 @@ mod tests {
     fn cmyk_jpeg_becomes_rgb() {
         // TurboJPEG writes CMYK input as an Adobe YCCK JPEG: the YCCK → CMYK → RGB path.
         let src = gradient(16, 16, 4);
-        let out = decode(&tj_compress(
-            &src,
-            16,
-            16,
-            tj::TJPF_TJPF_CMYK,
-            tj::TJSAMP_TJSAMP_444,
-            0,
-        ))
-        .unwrap();
+        let out = decode(&tj_compress(&src, 16, 16, tj::TJPF_TJPF_CMYK, tj::TJSAMP_TJSAMP_444, 0)).unwrap();
         let expect: Vec<u8> = src
             .chunks_exact(4)
-            .flat_map(|p| {
-                (0..3).map(move |c| (f64::from(p[c]) * f64::from(p[3]) / 255.0).round() as u8)
-            })
+            .flat_map(|p| (0..3).map(move |c| (f64::from(p[c]) * f64::from(p[3]) / 255.0).round() as u8))
             .collect();
-        assert!(
-            max_diff(out.as_raw(), &expect) <= 4,
-            "{}",
-            max_diff(out.as_raw(), &expect)
-        );
+        assert!(max_diff(out.as_raw(), &expect) <= 4, "{}", max_diff(out.as_raw(), &expect));
     }
 
     /// The last scan (SOS … before EOI) of a progressive JPEG repeated `n` more times.
@@ -357,14 +277,8 @@ mod tests {
 
     #[test]
     fn progressive_scan_bomb_is_refused() {
-        let prog = tj_compress(
-            &gradient(8, 8, 3),
-            8,
-            8,
-            tj::TJPF_TJPF_RGB,
-            tj::TJSAMP_TJSAMP_444,
-            tj::TJFLAG_PROGRESSIVE,
-        );
+        let prog =
+            tj_compress(&gradient(8, 8, 3), 8, 8, tj::TJPF_TJPF_RGB, tj::TJSAMP_TJSAMP_444, tj::TJFLAG_PROGRESSIVE);
         // A few extra scans: a bogus progression is only a warning, the image comes out.
         assert!(decode(&with_repeated_last_scan(&prog, 3)).is_ok());
         match decode(&with_repeated_last_scan(&prog, 600)) {
@@ -387,31 +301,14 @@ mod tests {
 
     #[test]
     fn size_is_checked_from_the_header_and_odd_precision_is_an_error() {
-        let jpeg = tj_compress(
-            &gradient(8, 8, 3),
-            8,
-            8,
-            tj::TJPF_TJPF_RGB,
-            tj::TJSAMP_TJSAMP_444,
-            0,
-        );
+        let jpeg = tj_compress(&gradient(8, 8, 3), 8, 8, tj::TJPF_TJPF_RGB, tj::TJSAMP_TJSAMP_444, 0);
         // 60000 × 60000 claimed by an 8×8 file: refused before any pixel buffer exists.
         match decode(&with_sof(&jpeg, 8, 60000, 60000)) {
-            Err(DecodeError::TooManyPixels {
-                width: 60000,
-                height: 60000,
-                ..
-            }) => {}
+            Err(DecodeError::TooManyPixels { width: 60000, height: 60000, .. }) => {}
             other => panic!("expected TooManyPixels, got {other:?}"),
         }
-        let limits = DecodeLimits {
-            max_encoded_bytes: 1 << 20,
-            max_pixels: 63,
-        };
-        assert!(matches!(
-            super::decode(&jpeg, &limits),
-            Err(DecodeError::TooManyPixels { pixels: 64, .. })
-        ));
+        let limits = DecodeLimits { max_encoded_bytes: 1 << 20, max_pixels: 63 };
+        assert!(matches!(super::decode(&jpeg, &limits), Err(DecodeError::TooManyPixels { pixels: 64, .. })));
         // Zero height in SOF: libjpeg refuses it ("Empty JPEG image").
         assert!(matches!(
             decode(&with_sof(&jpeg, 8, 8, 0)),
@@ -452,15 +349,9 @@ mod tests {
     #[test]
     fn exif_walk_survives_malformed_segments() {
         assert_eq!(exif_orientation(&[0xFF, 0xD8]), None);
-        assert_eq!(
-            exif_orientation(&[0xFF, 0xD8, 0xFF, 0xE1, 0xFF, 0xFF, 0x00]),
-            None
-        ); // length past end
+        assert_eq!(exif_orientation(&[0xFF, 0xD8, 0xFF, 0xE1, 0xFF, 0xFF, 0x00]), None); // length past end
         assert_eq!(exif_orientation(&[0xFF, 0xD8, 0xFF, 0xE1, 0x00]), None); // cut inside length
-        assert_eq!(
-            exif_orientation(&[0xFF, 0xD8, 0xFF, 0xE0, 0x00, 0x00, 0xFF, 0xD9]),
-            None
-        ); // length 0
+        assert_eq!(exif_orientation(&[0xFF, 0xD8, 0xFF, 0xE0, 0x00, 0x00, 0xFF, 0xD9]), None); // length 0
         assert_eq!(exif_orientation(&[0xFF, 0xD8, 0x12, 0x34]), None); // not a marker
         for n in 0..64 {
             let bytes: Vec<u8> = (0..n).map(|i| [0xFF, 0xE1, 0x00, 0x03][i % 4]).collect();

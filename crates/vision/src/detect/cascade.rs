@@ -118,9 +118,7 @@ fn numbers(node: roxmltree::Node<'_, '_>) -> Result<Vec<f64>, DetectError> {
 
 fn int_field(node: roxmltree::Node<'_, '_>, name: &str) -> Result<i64, DetectError> {
     let n = need(node, name)?;
-    text(n)
-        .parse::<i64>()
-        .map_err(|_| err(format!("<{name}>: `{}` is not an integer", text(n))))
+    text(n).parse::<i64>().map_err(|_| err(format!("<{name}>: `{}` is not an integer", text(n))))
 }
 
 fn as_int(v: f64, what: &str) -> Result<i32, DetectError> {
@@ -138,20 +136,12 @@ impl Cascade {
         let doc = roxmltree::Document::parse(xml).map_err(|e| err(format!("not valid XML: {e}")))?;
         let root = doc.root_element();
         if root.tag_name().name() != "opencv_storage" {
-            return Err(err(format!(
-                "root element is <{}>, expected <opencv_storage>",
-                root.tag_name().name()
-            )));
+            return Err(err(format!("root element is <{}>, expected <opencv_storage>", root.tag_name().name())));
         }
-        let top = root
-            .children()
-            .find(|c| c.is_element())
-            .ok_or_else(|| err("<opencv_storage> is empty"))?;
+        let top = root.children().find(|c| c.is_element()).ok_or_else(|| err("<opencv_storage> is empty"))?;
         if top.attribute("type_id") == Some("opencv-haar-classifier") {
-            return Err(err(
-                "old-format cascade (type_id=\"opencv-haar-classifier\", before OpenCV 2.4) is not \
-                 supported; use a cascade in the <cascade> format of opencv_traincascade",
-            ));
+            return Err(err("old-format cascade (type_id=\"opencv-haar-classifier\", before OpenCV 2.4) is not \
+                 supported; use a cascade in the <cascade> format of opencv_traincascade"));
         }
         if top.tag_name().name() != "cascade" {
             return Err(err(format!("expected <cascade> in <opencv_storage>, found <{}>", top.tag_name().name())));
@@ -206,10 +196,10 @@ impl Cascade {
         if stages.is_empty() {
             return Err(err("the cascade has no stages"));
         }
-        if let Some(n) = child(top, "stageNum") {
-            if text(n).parse::<usize>().ok() != Some(stages.len()) {
-                return Err(err(format!("<stageNum> {} but {} stages", text(n), stages.len())));
-            }
+        if let Some(n) = child(top, "stageNum")
+            && text(n).parse::<usize>().ok() != Some(stages.len())
+        {
+            return Err(err(format!("<stageNum> {} but {} stages", text(n), stages.len())));
         }
         Ok(Cascade { feature_type, width, height, stages, features, is_mirrored: false })
     }
@@ -307,7 +297,14 @@ pub(crate) fn mirror_code(c: u32) -> u32 {
     let bit = |b: u32| (c >> b) & 1;
     // new bit ← old bit: TL(7)←TR(5), T(6)←T(6), TR(5)←TL(7), R(4)←L(0),
     // BR(3)←BL(1), B(2)←B(2), BL(1)←BR(3), L(0)←R(4).
-    (bit(5) << 7) | (bit(6) << 6) | (bit(7) << 5) | (bit(0) << 4) | (bit(1) << 3) | (bit(2) << 2) | (bit(3) << 1) | bit(4)
+    (bit(5) << 7)
+        | (bit(6) << 6)
+        | (bit(7) << 5)
+        | (bit(0) << 4)
+        | (bit(1) << 3)
+        | (bit(2) << 2)
+        | (bit(3) << 1)
+        | bit(4)
 }
 
 fn mirror_subset(s: &[u32; 8]) -> [u32; 8] {
@@ -376,7 +373,13 @@ fn parse_feature(f: roxmltree::Node<'_, '_>, kind: FeatureType, ww: i32, wh: i32
                 return Err(err("an LBP rectangle needs 4 numbers: x y w h"));
             };
             let (x, y, w, h) = (as_int(x, "x")?, as_int(y, "y")?, as_int(w, "width")?, as_int(h, "height")?);
-            if x < 0 || y < 0 || w < 1 || h < 1 || i64::from(x) + 3 * i64::from(w) > i64::from(ww) || i64::from(y) + 3 * i64::from(h) > i64::from(wh) {
+            if x < 0
+                || y < 0
+                || w < 1
+                || h < 1
+                || i64::from(x) + 3 * i64::from(w) > i64::from(ww)
+                || i64::from(y) + 3 * i64::from(h) > i64::from(wh)
+            {
                 return Err(err(format!("LBP block grid {x} {y} {w} {h} lies outside the {ww}×{wh} window")));
             }
             Ok(Feature::Lbp { x, y, w, h })

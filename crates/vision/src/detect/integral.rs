@@ -28,7 +28,14 @@ impl Integral {
     /// As [`Integral::new`] with rows `stride` ≥ width + 1 entries apart (the entries past
     /// width + 1 hold 0): the levels of a pyramid share one stride so that a cascade's
     /// feature offsets are compiled once for all of them.
-    pub fn with_stride(pixels: &[u8], width: usize, height: usize, stride: usize, squared: bool, tilted: bool) -> Integral {
+    pub fn with_stride(
+        pixels: &[u8],
+        width: usize,
+        height: usize,
+        stride: usize,
+        squared: bool,
+        tilted: bool,
+    ) -> Integral {
         debug_assert_eq!(pixels.len(), width * height);
         let stride = stride.max(width + 1);
         let n = stride * (height + 1);
@@ -168,7 +175,9 @@ mod tests {
                 }
             }
             // Any rectangle sum.
-            for (x, y, rw, rh) in [(0, 0, w, h), (1.min(w - 1), 0, w - 1.min(w - 1), h), (w / 2, h / 2, w - w / 2, h - h / 2)] {
+            for (x, y, rw, rh) in
+                [(0, 0, w, h), (1.min(w - 1), 0, w - 1.min(w - 1), h), (w / 2, h / 2, w - w / 2, h - h / 2)]
+            {
                 let mut s = 0i32;
                 for yy in y..y + rh {
                     for xx in x..x + rw {
@@ -190,7 +199,7 @@ mod tests {
                     let mut s = 0i32;
                     for y in 0..yy {
                         for x in 0..w as i64 {
-                            if (x - xx + 1).abs() <= yy - y - 1 {
+                            if (x - xx + 1).abs() < yy - y {
                                 s += i32::from(px[y as usize * w + x as usize]);
                             }
                         }

@@ -168,7 +168,7 @@ mod tests {
         let g = Grey { width: 5, height: 2, pixels: vec![0, 2, 4, 6, 8, 10, 12, 14, 16, 18] };
         let s = g.shrink(2);
         assert_eq!((s.width, s.height), (3, 1));
-        assert_eq!(s.pixels, vec![(0 + 2 + 10 + 12) / 4, (4 + 6 + 14 + 16) / 4, (8 + 18) / 2]);
+        assert_eq!(s.pixels, vec![(2 + 10 + 12) / 4, (4 + 6 + 14 + 16) / 4, (8 + 18) / 2]);
     }
 
     #[test]

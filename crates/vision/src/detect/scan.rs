@@ -96,7 +96,12 @@ impl<'a> Compiled<'a> {
                     for (i, r) in rects.iter().enumerate() {
                         o.weight[i] = r.weight;
                         o.ofs[i] = if *tilted {
-                            [at(r.x, r.y), at(r.x - r.h, r.y + r.h), at(r.x + r.w, r.y + r.w), at(r.x + r.w - r.h, r.y + r.w + r.h)]
+                            [
+                                at(r.x, r.y),
+                                at(r.x - r.h, r.y + r.h),
+                                at(r.x + r.w, r.y + r.w),
+                                at(r.x + r.w - r.h, r.y + r.w + r.h),
+                            ]
                         } else {
                             [at(r.x, r.y), at(r.x + r.w, r.y), at(r.x, r.y + r.h), at(r.x + r.w, r.y + r.h)]
                         };
@@ -126,7 +131,12 @@ impl<'a> Compiled<'a> {
                 weak.push((nodes.len(), leaves.len()));
                 stumps_only &= wc.nodes.len() == 1;
                 for n in &wc.nodes {
-                    nodes.push(Node { feature: n.feature as u32, threshold: n.threshold, left: n.left, right: n.right });
+                    nodes.push(Node {
+                        feature: n.feature as u32,
+                        threshold: n.threshold,
+                        left: n.left,
+                        right: n.right,
+                    });
                     subsets.push(n.subset);
                 }
                 leaves.extend_from_slice(&wc.leaves);
@@ -311,24 +321,30 @@ impl<'a> Compiled<'a> {
                     return Outcome::Flat;
                 };
                 let t = if self.any_tilted { &ii.tilted[base..] } else { &[][..] };
-                self.run(|f| {
-                    let o = &self.haar[f as usize];
-                    let src = if o.tilted { t } else { s };
-                    let mut v = 0f32;
-                    for r in 0..o.n {
-                        let [p0, p1, p2, p3] = o.ofs[r];
-                        let rs = src[p0].wrapping_sub(src[p1]).wrapping_sub(src[p2]).wrapping_add(src[p3]);
-                        v += o.weight[r] * rs as f32;
-                    }
-                    v * inv
-                }, |node, v| v < self.nodes[node].threshold)
+                self.run(
+                    |f| {
+                        let o = &self.haar[f as usize];
+                        let src = if o.tilted { t } else { s };
+                        let mut v = 0f32;
+                        for r in 0..o.n {
+                            let [p0, p1, p2, p3] = o.ofs[r];
+                            let rs = src[p0].wrapping_sub(src[p1]).wrapping_sub(src[p2]).wrapping_add(src[p3]);
+                            v += o.weight[r] * rs as f32;
+                        }
+                        v * inv
+                    },
+                    |node, v| v < self.nodes[node].threshold,
+                )
             }
             FeatureType::Lbp => {
                 let s = &ii.sum[base..];
-                self.run(|f| lbp_code(&self.lbp[f as usize], s) as f32, |node, code| {
-                    let c = code as u32;
-                    self.subsets[node][(c >> 5) as usize] & (1 << (c & 31)) != 0
-                })
+                self.run(
+                    |f| lbp_code(&self.lbp[f as usize], s) as f32,
+                    |node, code| {
+                        let c = code as u32;
+                        self.subsets[node][(c >> 5) as usize] & (1 << (c & 31)) != 0
+                    },
+                )
             }
         }
     }
@@ -376,9 +392,8 @@ fn lbp_code(o: &[usize; 16], s: &[i32]) -> u32 {
 /// The LBP code from the 16 integral values at the grid's corners (row-major 4 × 4).
 #[inline(always)]
 fn lbp_code_of(v: &[i32; 16]) -> u32 {
-    let b = |p0: usize, p1: usize, p2: usize, p3: usize| {
-        v[p0].wrapping_sub(v[p1]).wrapping_sub(v[p2]).wrapping_add(v[p3])
-    };
+    let b =
+        |p0: usize, p1: usize, p2: usize, p3: usize| v[p0].wrapping_sub(v[p1]).wrapping_sub(v[p2]).wrapping_add(v[p3]);
     let c = b(5, 6, 9, 10);
     (u32::from(b(0, 1, 4, 5) >= c) << 7)
         | (u32::from(b(1, 2, 5, 6) >= c) << 6)

@@ -156,7 +156,8 @@ fn every_installed_cascade_loads_or_is_refused_clearly() {
     let mut loaded = 0;
     for sub in ["haarcascades", "lbpcascades"] {
         let dir = opencv_dir().join(sub);
-        let entries = std::fs::read_dir(&dir).unwrap_or_else(|e| panic!("{}: {e} (install opencv-data)", dir.display()));
+        let entries =
+            std::fs::read_dir(&dir).unwrap_or_else(|e| panic!("{}: {e} (install opencv-data)", dir.display()));
         for e in entries {
             let path = e.unwrap().path();
             let xml = std::fs::read_to_string(&path).unwrap();
@@ -266,7 +267,9 @@ fn bad_params_are_refused() {
     assert!(det.set_params(DetectorParams { fixed_step: Some(0), ..Default::default() }).is_err());
     assert!(det.set_params(DetectorParams { coarse_to_fine: Some(1.5), ..Default::default() }).is_err());
     assert!(det.set_params(DetectorParams { coarse_grid: 1, ..Default::default() }).is_err());
-    assert!(det.set_params(DetectorParams { fixed_step: Some(2), coarse_to_fine: Some(0.3), ..Default::default() }).is_ok());
+    assert!(
+        det.set_params(DetectorParams { fixed_step: Some(2), coarse_to_fine: Some(0.3), ..Default::default() }).is_ok()
+    );
     assert_eq!(DetectorParams::opencv().coarse_to_fine, None);
     assert_eq!(DetectorParams::opencv().min_size_fraction, 0.0);
     assert!(det.set_params(DetectorParams::opencv()).is_ok());

@@ -33,8 +33,7 @@ pub struct BoxMap {
 }
 
 impl BoxMap {
-    pub const IDENTITY: BoxMap =
-        BoxMap { ax: 0.0, bx: 0.0, ay: 0.0, by: 0.0, sw: 1.0, tw: 0.0, sh: 1.0, th: 0.0 };
+    pub const IDENTITY: BoxMap = BoxMap { ax: 0.0, bx: 0.0, ay: 0.0, by: 0.0, sw: 1.0, tw: 0.0, sh: 1.0, th: 0.0 };
 
     pub fn apply(&self, b: &FaceBox) -> FaceBox {
         let [cx, cy] = b.center();
@@ -134,20 +133,44 @@ mod default_coefficients {
     /// 10 % of the shorter side.
     pub fn viola_jones_to_dlib() -> BoxCalibration {
         let fallback = BoxMap {
-            ax: -0.022252448, bx: 3.7253146, ay: 0.052395754, by: 0.24760456,
-            sw: 0.86494243, tw: 33.4239, sh: 0.8710626, th: 31.817225,
+            ax: -0.022252448,
+            bx: 3.7253146,
+            ay: 0.052395754,
+            by: 0.24760456,
+            sw: 0.86494243,
+            tw: 33.4239,
+            sh: 0.8710626,
+            th: 31.817225,
         };
         let haar_frontal = BoxMap {
-            ax: 0.0013332064, bx: -0.23612197, ay: 0.06295136, by: 2.5278344,
-            sw: 0.83808666, tw: 12.984389, sh: 0.83818126, th: 12.975257,
+            ax: 0.0013332064,
+            bx: -0.23612197,
+            ay: 0.06295136,
+            by: 2.5278344,
+            sw: 0.83808666,
+            tw: 12.984389,
+            sh: 0.83818126,
+            th: 12.975257,
         };
         let haar_profile = BoxMap {
-            ax: -0.1603347, bx: -5.50259, ay: 0.041583166, by: 8.17743,
-            sw: 0.7813841, tw: 21.246582, sh: 0.7734077, th: 19.009928,
+            ax: -0.1603347,
+            bx: -5.50259,
+            ay: 0.041583166,
+            by: 8.17743,
+            sw: 0.7813841,
+            tw: 21.246582,
+            sh: 0.7734077,
+            th: 19.009928,
         };
         let lbp_frontal = BoxMap {
-            ax: -0.013871939, bx: 0.353067, ay: -0.01379415, by: 4.0870247,
-            sw: 1.2231499, tw: 15.262857, sh: 1.2654889, th: 5.714596,
+            ax: -0.013871939,
+            bx: 0.353067,
+            ay: -0.01379415,
+            by: 4.0870247,
+            sw: 1.2231499,
+            tw: 15.262857,
+            sh: 1.2654889,
+            th: 5.714596,
         };
         BoxCalibration {
             by_source: [

@@ -48,10 +48,7 @@ pub fn reference_statistics(points: &[[f32; 2]]) -> Option<([f64; 2], [f64; 2])>
         return None;
     }
     let n = pts.len() as f64;
-    let mean = [
-        pts.iter().map(|p| p[0] as f64).sum::<f64>() / n,
-        pts.iter().map(|p| p[1] as f64).sum::<f64>() / n,
-    ];
+    let mean = [pts.iter().map(|p| p[0] as f64).sum::<f64>() / n, pts.iter().map(|p| p[1] as f64).sum::<f64>() / n];
     let (mut lo, mut hi) = ([f64::MAX; 2], [f64::MIN; 2]);
     for p in pts {
         for k in 0..2 {
@@ -204,12 +201,15 @@ mod tests {
             .collect();
         let pairs: Vec<(&[[f32; 2]], FaceBox)> = samples.iter().map(|(p, b)| (p.as_slice(), *b)).collect();
         let fit = BoxFromLandmarks::fit(&pairs).unwrap();
-        for (g, w) in fit.cx.iter().chain(&fit.cy).chain(&fit.side).zip(truth.cx.iter().chain(&truth.cy).chain(&truth.side)) {
+        for (g, w) in
+            fit.cx.iter().chain(&fit.cy).chain(&fit.side).zip(truth.cx.iter().chain(&truth.cy).chain(&truth.side))
+        {
             assert!((g - w).abs() < 1e-3 * w.abs().max(1.0), "{fit:?}");
         }
         // w and h always in the same ratio: the fit cannot separate them.
-        let same_shape: Vec<(Vec<[f32; 2]>, FaceBox)> =
-            (0..10).map(|i| (rectangle_points(0.0, 0.0, 10.0 * (i + 1) as f32, 20.0 * (i + 1) as f32), samples[0].1)).collect();
+        let same_shape: Vec<(Vec<[f32; 2]>, FaceBox)> = (0..10)
+            .map(|i| (rectangle_points(0.0, 0.0, 10.0 * (i + 1) as f32, 20.0 * (i + 1) as f32), samples[0].1))
+            .collect();
         let pairs: Vec<(&[[f32; 2]], FaceBox)> = same_shape.iter().map(|(p, b)| (p.as_slice(), *b)).collect();
         assert_eq!(BoxFromLandmarks::fit(&pairs), None);
         assert_eq!(BoxFromLandmarks::fit(&[]), None);

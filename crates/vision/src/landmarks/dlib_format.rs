@@ -14,9 +14,7 @@ pub enum FormatError {
     BadIntHeader { offset: usize, byte: u8, what: &'static str },
     #[error("integer out of range at byte {offset} while reading {what}")]
     IntOutOfRange { offset: usize, what: &'static str },
-    #[error(
-        "float at byte {offset} uses dlib's legacy text encoding, which this reader does not support"
-    )]
+    #[error("float at byte {offset} uses dlib's legacy text encoding, which this reader does not support")]
     LegacyFloat { offset: usize },
     #[error("{what} at byte {offset}: count {count} cannot fit in the {remaining} bytes left")]
     CountTooLarge { offset: usize, what: &'static str, count: u64, remaining: usize },
@@ -57,10 +55,7 @@ impl<'a> Reader<'a> {
         if size == 0 || size > max_bytes {
             return Err(FormatError::BadIntHeader { offset, byte: ctrl, what });
         }
-        let bytes = self
-            .data
-            .get(self.pos + 1..self.pos + 1 + size)
-            .ok_or(FormatError::Truncated { offset, what })?;
+        let bytes = self.data.get(self.pos + 1..self.pos + 1 + size).ok_or(FormatError::Truncated { offset, what })?;
         let mut v = 0u64;
         for &b in bytes.iter().rev() {
             v = (v << 8) | b as u64;
@@ -123,13 +118,7 @@ impl<'a> Reader<'a> {
         self.check_fits(offset, n, min_bytes, what)
     }
 
-    fn check_fits(
-        &self,
-        offset: usize,
-        n: u64,
-        min_bytes: usize,
-        what: &'static str,
-    ) -> Result<usize, FormatError> {
+    fn check_fits(&self, offset: usize, n: u64, min_bytes: usize, what: &'static str) -> Result<usize, FormatError> {
         let remaining = self.remaining();
         if n.saturating_mul(min_bytes.max(1) as u64) > remaining as u64 {
             return Err(FormatError::CountTooLarge { offset, what, count: n, remaining });

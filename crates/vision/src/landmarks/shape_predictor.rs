@@ -78,11 +78,7 @@ impl ShapePredictor {
         let io = |source| ShapePredictorError::Io { path: path.to_owned(), source };
         let size = std::fs::metadata(path).map_err(io)?.len();
         if size > MAX_MODEL_BYTES {
-            return Err(ShapePredictorError::TooLarge {
-                path: path.to_owned(),
-                size,
-                max: MAX_MODEL_BYTES,
-            });
+            return Err(ShapePredictorError::TooLarge { path: path.to_owned(), size, max: MAX_MODEL_BYTES });
         }
         let bytes = std::fs::read(path).map_err(io)?;
         Self::from_bytes(&bytes)
@@ -184,10 +180,7 @@ impl ShapePredictor {
             // vector<float,2>: two floats of at least 4 bytes each
             let n = r.count(8, "delta list")?;
             if n != anchor_idx.len() {
-                return Err(invalid(format!(
-                    "level {level}: {} anchors but {n} deltas",
-                    anchor_idx.len()
-                )));
+                return Err(invalid(format!("level {level}: {} anchors but {n} deltas", anchor_idx.len())));
             }
             let mut deltas = Vec::with_capacity(n);
             for _ in 0..n {
@@ -295,11 +288,7 @@ impl Tree {
         let mut i = 0;
         while i < n {
             let s = self.splits[i];
-            i = if features[s.idx1 as usize] - features[s.idx2 as usize] > s.thresh {
-                2 * i + 1
-            } else {
-                2 * i + 2
-            };
+            i = if features[s.idx1 as usize] - features[s.idx2 as usize] > s.thresh { 2 * i + 1 } else { 2 * i + 2 };
         }
         let leaf = i - n;
         &self.leaf_values[leaf * dim..(leaf + 1) * dim]
@@ -371,11 +360,7 @@ fn invalid(msg: String) -> ShapePredictorError {
 }
 
 fn check_finite(v: &[f32], what: &str) -> Result<(), ShapePredictorError> {
-    if v.iter().all(|x| x.is_finite()) {
-        Ok(())
-    } else {
-        Err(invalid(format!("non-finite {what}")))
-    }
+    if v.iter().all(|x| x.is_finite()) { Ok(()) } else { Err(invalid(format!("non-finite {what}"))) }
 }
 
 #[cfg(test)]

@@ -255,10 +255,14 @@ impl OnnxLandmarkerConfig {
 }
 
 /// Reads a JSON config file; a relative `model` path is taken relative to the file's folder.
-fn from_json_file<T: serde::de::DeserializeOwned>(path: &Path, model: impl FnOnce(&mut T) -> &mut PathBuf) -> Result<T, OnnxError> {
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| OnnxError::Config(format!("cannot read {}: {e}", path.display())))?;
-    let mut config: T = serde_json::from_str(&text).map_err(|e| OnnxError::Config(format!("{}: {e}", path.display())))?;
+fn from_json_file<T: serde::de::DeserializeOwned>(
+    path: &Path,
+    model: impl FnOnce(&mut T) -> &mut PathBuf,
+) -> Result<T, OnnxError> {
+    let text =
+        std::fs::read_to_string(path).map_err(|e| OnnxError::Config(format!("cannot read {}: {e}", path.display())))?;
+    let mut config: T =
+        serde_json::from_str(&text).map_err(|e| OnnxError::Config(format!("{}: {e}", path.display())))?;
     let m = model(&mut config);
     if let Some(dir) = path.parent().filter(|_| m.is_relative() && !m.as_os_str().is_empty()) {
         *m = dir.join(&*m);

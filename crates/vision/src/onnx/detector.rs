@@ -6,11 +6,11 @@ use image::RgbImage;
 use ort::session::Session;
 use ort::value::Tensor;
 
+use super::OnnxError;
 use super::config::{BoxUnits, OnnxDetectorConfig, ResizeMode};
 use super::resample::{AxisMap, Grid, sample_nchw};
 use super::runtime::{ModelSource, load_session, model_label};
 use super::signature::{self, check_output, fmt_dims, read_output};
-use super::OnnxError;
 use crate::face::{Detection, FaceBox, FaceDetector, ModelRunError};
 
 const ROLE: &str = "detector";
@@ -59,7 +59,12 @@ impl Placement {
     /// Input pixel centre → photo position (pixel centres at integers on both sides).
     pub fn grid(&self, input: [u32; 2]) -> Grid {
         let axis = |s: f64, pad: f64| AxisMap { scale: 1.0 / s, offset: (0.5 - pad) / s - 0.5 };
-        Grid { width: input[0] as usize, height: input[1] as usize, x: axis(self.sx, self.pad_x), y: axis(self.sy, self.pad_y) }
+        Grid {
+            width: input[0] as usize,
+            height: input[1] as usize,
+            x: axis(self.sx, self.pad_x),
+            y: axis(self.sy, self.pad_y),
+        }
     }
 
     /// Input edge coordinates → photo edge coordinates.
@@ -108,8 +113,12 @@ impl OnnxDetector {
                 [cw, ch]
             }
         };
-        check_output(&signature::output(&session, &config.boxes_output).map_err(contract)?, &[&[-1, 4], &[1, -1, 4]], "[N, 4] or [1, N, 4]")
-            .map_err(contract)?;
+        check_output(
+            &signature::output(&session, &config.boxes_output).map_err(contract)?,
+            &[&[-1, 4], &[1, -1, 4]],
+            "[N, 4] or [1, N, 4]",
+        )
+        .map_err(contract)?;
         check_output(
             &signature::output(&session, &config.scores_output).map_err(contract)?,
             &[&[-1], &[1, -1], &[-1, 1]],
@@ -135,7 +144,8 @@ impl OnnxDetector {
     /// The model's raw output: boxes (edge coordinates of the input, in input pixels) and scores.
     fn run(&self, tensor: Vec<f32>) -> Result<Vec<([f32; 4], f32)>, ModelRunError> {
         let [w, h] = self.input_size;
-        let value = Tensor::from_array(([1usize, 3, h as usize, w as usize], tensor)).map_err(|e| self.err(e.to_string()))?;
+        let value =
+            Tensor::from_array(([1usize, 3, h as usize, w as usize], tensor)).map_err(|e| self.err(e.to_string()))?;
         let mut session = self.session.lock().unwrap_or_else(|p| p.into_inner());
         let outputs = session
             .run(ort::inputs![self.input_name.as_str() => value])
@@ -144,11 +154,19 @@ impl OnnxDetector {
         let (ss, scores) = read_output(&outputs, &self.config.scores_output).map_err(|m| self.err(m))?;
         let n = match bs.as_slice() {
             [n, 4] | [1, n, 4] => *n as usize,
-            _ => return Err(self.err(format!("boxes output has shape {}, the contract needs [N, 4] or [1, N, 4]", fmt_dims(&bs)))),
+            _ => {
+                return Err(self
+                    .err(format!("boxes output has shape {}, the contract needs [N, 4] or [1, N, 4]", fmt_dims(&bs))));
+            }
         };
         let ns = match ss.as_slice() {
             [n] | [1, n] | [n, 1] => *n as usize,
-            _ => return Err(self.err(format!("scores output has shape {}, the contract needs [N], [1, N] or [N, 1]", fmt_dims(&ss)))),
+            _ => {
+                return Err(self.err(format!(
+                    "scores output has shape {}, the contract needs [N], [1, N] or [N, 1]",
+                    fmt_dims(&ss)
+                )));
+            }
         };
         if ns != n {
             return Err(self.err(format!("{n} boxes but {ns} scores")));
@@ -197,10 +215,20 @@ impl FaceDetector for OnnxDetector {
                 let (ex0, ey0) = place.edge_to_photo(b[0] as f64, b[1] as f64);
                 let (ex1, ey1) = place.edge_to_photo(b[2] as f64, b[3] as f64);
                 // At least one photo pixel wide and tall, and touching the photo.
-                let keep = ex1 - ex0 >= 1.0 && ey1 - ey0 >= 1.0 && ex1 > 0.0 && ey1 > 0.0 && ex0 < pw as f64 && ey0 < ph as f64;
+                let keep = ex1 - ex0 >= 1.0
+                    && ey1 - ey0 >= 1.0
+                    && ex1 > 0.0
+                    && ey1 > 0.0
+                    && ex0 < pw as f64
+                    && ey0 < ph as f64;
                 // Edge coordinates [e0, e1) → centres of the first and last pixel covered.
                 keep.then(|| Detection {
-                    face_box: FaceBox { x0: ex0 as f32, y0: ey0 as f32, x1: (ex1 - 1.0) as f32, y1: (ey1 - 1.0) as f32 },
+                    face_box: FaceBox {
+                        x0: ex0 as f32,
+                        y0: ey0 as f32,
+                        x1: (ex1 - 1.0) as f32,
+                        y1: (ey1 - 1.0) as f32,
+                    },
                     score,
                     source: format!("onnx:{}", self.label),
                 })

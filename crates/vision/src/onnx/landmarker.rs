@@ -6,11 +6,11 @@ use image::RgbImage;
 use ort::session::Session;
 use ort::value::Tensor;
 
+use super::OnnxError;
 use super::config::{OnnxLandmarkerConfig, PointUnits};
 use super::resample::{Grid, sample_nchw};
 use super::runtime::{ModelSource, load_session, model_label};
 use super::signature::{self, check_output, fmt_dims, read_output};
-use super::OnnxError;
 use crate::crop::CropTransform;
 use crate::face::{Detection, FaceBox, LandmarkPredictor, Landmarks, ModelRunError};
 
@@ -74,7 +74,10 @@ impl OnnxLandmarker {
         let (input, h, w) = signature::single_image_input(&session).map_err(contract)?;
         let declared = fmt_dims(input.dims.as_deref().unwrap_or(&[]));
         if h > 0 && w > 0 && h != w {
-            return Err(contract(format!("its input `{}` is {declared}; the contract needs a square crop", input.name)));
+            return Err(contract(format!(
+                "its input `{}` is {declared}; the contract needs a square crop",
+                input.name
+            )));
         }
         let fixed = h.max(w);
         let input_size = match config.input_size {
@@ -92,7 +95,8 @@ impl OnnxLandmarker {
         };
         let p = POINTS as i64;
         let points = signature::output(&session, &config.points_output).map_err(contract)?;
-        check_output(&points, &[&[1, p, 2], &[p, 2], &[1, 2 * p]], "[1, 68, 2], [68, 2] or [1, 136]").map_err(contract)?;
+        check_output(&points, &[&[1, p, 2], &[p, 2], &[1, 2 * p]], "[1, 68, 2], [68, 2] or [1, 136]")
+            .map_err(contract)?;
         if let Some(name) = &config.confidence_output {
             let conf = signature::output(&session, name).map_err(contract)?;
             check_output(&conf, &[&[1, p], &[p]], "[1, 68] or [68]").map_err(contract)?;
@@ -121,7 +125,8 @@ impl LandmarkPredictor for OnnxLandmarker {
             .ok_or_else(|| self.err(format!("invalid face box {:?}", face.face_box)))?;
         let mut tensor = Vec::new();
         sample_nchw(image, &Grid::of_crop(&crop, n), &self.config.pixels, &mut tensor);
-        let value = Tensor::from_array(([1usize, 3, n as usize, n as usize], tensor)).map_err(|e| self.err(e.to_string()))?;
+        let value =
+            Tensor::from_array(([1usize, 3, n as usize, n as usize], tensor)).map_err(|e| self.err(e.to_string()))?;
         let mut session = self.session.lock().unwrap_or_else(|p| p.into_inner());
         let outputs = session
             .run(ort::inputs![self.input_name.as_str() => value])
@@ -150,10 +155,15 @@ impl LandmarkPredictor for OnnxLandmarker {
             Some(name) => {
                 let (shape, data) = read_output(&outputs, name).map_err(|m| self.err(m))?;
                 if !matches!(shape.as_slice(), [1, a] | [a] if *a == p) {
-                    return Err(self.err(format!("confidence output has shape {}, the contract needs [1, 68] or [68]", fmt_dims(&shape))));
+                    return Err(self.err(format!(
+                        "confidence output has shape {}, the contract needs [1, 68] or [68]",
+                        fmt_dims(&shape)
+                    )));
                 }
                 if let Some(v) = data.iter().find(|v| !(0.0..=1.0).contains(*v)) {
-                    return Err(self.err(format!("confidence {v} is outside [0, 1] (put the sigmoid inside the model)")));
+                    return Err(
+                        self.err(format!("confidence {v} is outside [0, 1] (put the sigmoid inside the model)"))
+                    );
                 }
                 data.to_vec()
             }

@@ -60,7 +60,12 @@ struct AxisTaps {
 impl AxisTaps {
     fn new(out: usize, src: usize, map: AxisMap) -> Self {
         let r = map.scale.abs().max(1.0);
-        let mut t = AxisTaps { start: Vec::with_capacity(out), off: vec![0], weights: Vec::new(), inside: Vec::with_capacity(out) };
+        let mut t = AxisTaps {
+            start: Vec::with_capacity(out),
+            off: vec![0],
+            weights: Vec::new(),
+            inside: Vec::with_capacity(out),
+        };
         for u in 0..out {
             let x = map.to_image(u as f64);
             let inside = src > 0 && x >= -0.5 && x <= src as f64 - 0.5;
@@ -180,7 +185,12 @@ mod tests {
     #[test]
     fn identity_map_copies_the_photo() {
         let img = ramp(9, 7);
-        let g = Grid { width: 9, height: 7, x: AxisMap { scale: 1.0, offset: 0.0 }, y: AxisMap { scale: 1.0, offset: 0.0 } };
+        let g = Grid {
+            width: 9,
+            height: 7,
+            x: AxisMap { scale: 1.0, offset: 0.0 },
+            y: AxisMap { scale: 1.0, offset: 0.0 },
+        };
         let mut t = Vec::new();
         sample_nchw(&img, &g, &raw_px(), &mut t);
         for v in 0..7 {
@@ -230,7 +240,8 @@ mod tests {
         // Tensor pixel u ↦ x = u − 2: u = 0, 1 lie outside (x < −0.5), u = 2..5 inside, 6, 7 outside.
         let map = AxisMap { scale: 1.0, offset: -2.0 };
         let g = Grid { width: 8, height: 8, x: map, y: map };
-        let px = PixelNormalisation { order: ChannelOrder::Bgr, mean: [10.0, 20.0, 30.0], std: [2.0, 4.0, 5.0], pad: 0.0 };
+        let px =
+            PixelNormalisation { order: ChannelOrder::Bgr, mean: [10.0, 20.0, 30.0], std: [2.0, 4.0, 5.0], pad: 0.0 };
         let mut t = Vec::new();
         sample_nchw(&img, &g, &px, &mut t);
         // Tensor channel 0 is blue: (50 − 10)/2; 1 green: (100 − 20)/4; 2 red: (200 − 30)/5.
@@ -277,9 +288,24 @@ mod tests {
             image::Rgb([(h % 251) as u8, (h / 7 % 241) as u8, (h / 13 % 239) as u8])
         });
         let grids = [
-            Grid { width: 17, height: 13, x: AxisMap { scale: 2.7, offset: 1.3 }, y: AxisMap { scale: 2.7, offset: 2.2 } },
-            Grid { width: 20, height: 16, x: AxisMap { scale: 3.1, offset: -9.0 }, y: AxisMap { scale: 2.2, offset: 20.0 } },
-            Grid { width: 30, height: 25, x: AxisMap { scale: 0.6, offset: 40.0 }, y: AxisMap { scale: 0.45, offset: -3.0 } },
+            Grid {
+                width: 17,
+                height: 13,
+                x: AxisMap { scale: 2.7, offset: 1.3 },
+                y: AxisMap { scale: 2.7, offset: 2.2 },
+            },
+            Grid {
+                width: 20,
+                height: 16,
+                x: AxisMap { scale: 3.1, offset: -9.0 },
+                y: AxisMap { scale: 2.2, offset: 20.0 },
+            },
+            Grid {
+                width: 30,
+                height: 25,
+                x: AxisMap { scale: 0.6, offset: 40.0 },
+                y: AxisMap { scale: 0.45, offset: -3.0 },
+            },
         ];
         for g in &grids {
             let mut t = Vec::new();

@@ -125,7 +125,11 @@ pub(crate) enum ModelSource<'a> {
 }
 
 /// A session for `source` under `config`'s runtime. `label` names the model in errors.
-pub(crate) fn load_session(config: &OnnxRuntimeConfig, source: ModelSource<'_>, label: &str) -> Result<Session, OnnxError> {
+pub(crate) fn load_session(
+    config: &OnnxRuntimeConfig,
+    source: ModelSource<'_>,
+    label: &str,
+) -> Result<Session, OnnxError> {
     // Check the file before loading the runtime, so a wrong path reads as such.
     if let ModelSource::File(path) = source {
         let meta = std::fs::metadata(path).map_err(|e| OnnxError::ModelRead { path: path.to_path_buf(), source: e })?;

@@ -33,7 +33,10 @@ pub(crate) fn inputs(session: &Session) -> Result<Vec<Declared>, String> {
 pub(crate) fn output(session: &Session, name: &str) -> Result<Declared, String> {
     match session.outputs().iter().find(|o| o.name() == name) {
         Some(o) => declared(o.name(), o.dtype()),
-        None => Err(format!("no output named `{name}` (the model's outputs: {})", names(session.outputs().iter().map(|o| o.name())))),
+        None => Err(format!(
+            "no output named `{name}` (the model's outputs: {})",
+            names(session.outputs().iter().map(|o| o.name()))
+        )),
     }
 }
 
