@@ -20,6 +20,8 @@ enum Command {
     Synth(cmd::synth::SynthArgs),
     /// Detect faces and their 68 landmarks in photos.
     Detect(cmd::detect::DetectArgs),
+    /// Reconstruct 3D faces from photos (model fitted to the landmarks), in-process.
+    Fit(cmd::fit::FitArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -28,6 +30,7 @@ fn main() -> std::process::ExitCode {
         Command::Model(c) => cmd::model::run(c),
         Command::Synth(a) => cmd::synth::run(a),
         Command::Detect(a) => cmd::detect::run(a),
+        Command::Fit(a) => cmd::fit::run(a),
     };
     match result {
         Ok(code) => code,

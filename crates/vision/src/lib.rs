@@ -8,6 +8,7 @@
 //! * [`crop`] — the 30 % grown square crop, its crop↔image transform, the resolution router.
 //! * [`onnx`] — pluggable ONNX detectors and landmarkers through `ort`.
 //! * [`pipeline`] — the whole front end: image → faces.
+//! * [`pts`] — iBUG `.pts` landmark files.
 
 pub mod crop;
 pub mod decode;
@@ -16,3 +17,4 @@ pub mod face;
 pub mod landmarks;
 pub mod onnx;
 pub mod pipeline;
+pub mod pts;

@@ -1,0 +1,184 @@
+//! `facerecon fit IMAGE… -o DIR [--refine landmarks] [--json] [--pts]`: 3D faces from
+//! photos, in-process. Per face `K` (1-based, largest first) of `<stem>`, in `DIR`:
+//! `<stem>-face<K>.glb`, `.ply`, `.obj` (+ `.mtl`), `.json` (coefficients, landmarks,
+//! residuals), and per photo `<stem>-overlay.png`. `--json` prints one line per photo.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::Context;
+use facerecon_model::MorphableModel;
+use facerecon_model::mesh::{glb, obj, ply};
+use facerecon_recon::outputs::{self, FaceRecord};
+use facerecon_recon::{FaceSource, Options, Pipeline, Refine};
+use facerecon_vision::pipeline::FrontEnd;
+
+#[derive(clap::Args)]
+pub struct FitArgs {
+    /// Photos (JPEG, PNG, WebP).
+    #[arg(required = true)]
+    images: Vec<PathBuf>,
+    /// Output folder (created if missing).
+    #[arg(short, long)]
+    out: PathBuf,
+    /// How far to reconstruct: `landmarks` (pose, identity and expression from the 68
+    /// landmarks). The photometric levels are not built yet.
+    #[arg(long, value_enum, default_value = "landmarks")]
+    refine: RefineArg,
+    /// One JSON object per photo on stdout (one per line).
+    #[arg(long)]
+    json: bool,
+    /// Fit the iBUG `.pts` file beside each photo (same stem) instead of detecting.
+    #[arg(long)]
+    pts: bool,
+    /// At most this many faces per photo (largest first).
+    #[arg(long, default_value_t = 16)]
+    max_faces: usize,
+    /// Model file (default: the ICT model built from the shared ICT-FaceKit folder).
+    #[arg(long)]
+    model: Option<PathBuf>,
+    /// dlib shape predictor file.
+    #[arg(long, default_value = facerecon_vision::landmarks::DEFAULT_MODEL_PATH)]
+    landmark_model: PathBuf,
+    /// Write no mesh files (JSON and overlay only).
+    #[arg(long)]
+    no_meshes: bool,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum RefineArg {
+    Landmarks,
+}
+
+#[derive(serde::Serialize)]
+struct ImageJson<'a> {
+    image: &'a str,
+    width: u32,
+    height: u32,
+    faces: Vec<FaceJson>,
+}
+
+#[derive(serde::Serialize)]
+struct FaceJson {
+    #[serde(rename = "box")]
+    face_box: [f32; 4],
+    landmarks: Vec<[f32; 2]>,
+    fitted_landmarks: Option<Vec<[f32; 2]>>,
+    coefficients: Option<facerecon_model::Coefficients>,
+    residuals: Option<outputs::Residuals>,
+    /// Why the face was not fitted (null when it was).
+    error: Option<String>,
+}
+
+pub fn run(args: FitArgs) -> anyhow::Result<ExitCode> {
+    let model: std::sync::Arc<MorphableModel> = match &args.model {
+        Some(p) => {
+            std::sync::Arc::new(MorphableModel::load(p).with_context(|| format!("loading model {}", p.display()))?)
+        }
+        None => facerecon_model::ict::load_default().context("building the default ICT model")?,
+    };
+    let front = FrontEnd::load_standard(&args.landmark_model)?;
+    let pipeline = Pipeline::new(model, front)?;
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let RefineArg::Landmarks = args.refine;
+    let bar = (args.images.len() > 1).then(|| {
+        indicatif::ProgressBar::new(args.images.len() as u64).with_style(
+            indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} photos, {per_sec}, eta {eta}")
+                .expect("valid progress template"),
+        )
+    });
+    let mut failed = 0;
+    for path in &args.images {
+        if let Err(e) = one(&pipeline, &args, path) {
+            let msg = format!("{}: {e:#}", path.display());
+            // suspend, not println: println prints nothing when the bar is hidden (no TTY).
+            match &bar {
+                Some(b) => b.suspend(|| eprintln!("{msg}")),
+                None => eprintln!("{msg}"),
+            }
+            failed += 1;
+        }
+        if let Some(b) = &bar {
+            b.inc(1);
+        }
+    }
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    if failed > 0 {
+        eprintln!("{failed} of {} photos failed", args.images.len());
+    }
+    Ok(if failed == 0 { ExitCode::SUCCESS } else { ExitCode::FAILURE })
+}
+
+fn one(pipeline: &Pipeline, args: &FitArgs, path: &Path) -> anyhow::Result<()> {
+    let bytes = std::fs::read(path).context("cannot read file")?;
+    let faces = if args.pts {
+        let pts_path = path.with_extension("pts");
+        let text = std::fs::read(&pts_path).with_context(|| format!("cannot read {}", pts_path.display()))?;
+        let points = facerecon_vision::pts::read(&text).with_context(|| format!("{}", pts_path.display()))?;
+        FaceSource::Landmarks(vec![points])
+    } else {
+        FaceSource::Detect
+    };
+    let options = Options { refine: Refine::Landmarks, faces, max_faces: args.max_faces };
+    let recon = pipeline.reconstruct(&bytes, &options)?;
+    let model = pipeline.model();
+    let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "image".into());
+    let mut faces_json = Vec::new();
+    for (k, face) in recon.faces.iter().enumerate() {
+        let base = args.out.join(format!("{stem}-face{}", k + 1));
+        let record = outputs::face_record(model, face);
+        if let Some(r) = &record {
+            write_face(model, r, &base, !args.no_meshes)?;
+        }
+        let b = face.face.detection.face_box;
+        faces_json.push(FaceJson {
+            face_box: [b.x0, b.y0, b.x1, b.y1],
+            landmarks: face.face.landmarks.points.clone(),
+            fitted_landmarks: record.as_ref().map(|r| r.fitted_landmarks.clone()),
+            coefficients: record.as_ref().map(|r| r.coefficients.clone()),
+            residuals: record.as_ref().map(|r| r.residuals.clone()),
+            error: face.fit.as_ref().err().map(|e| e.to_string()),
+        });
+    }
+    let overlay = outputs::overlay(model, &recon, 0.85)?;
+    let overlay_path = args.out.join(format!("{stem}-overlay.png"));
+    overlay.save(&overlay_path).with_context(|| format!("writing {}", overlay_path.display()))?;
+    let name = path.display().to_string();
+    if args.json {
+        let obj =
+            ImageJson { image: &name, width: recon.image.width(), height: recon.image.height(), faces: faces_json };
+        println!("{}", serde_json::to_string(&obj)?);
+    } else {
+        let fitted = recon.faces.iter().filter(|f| f.fit.is_ok()).count();
+        println!("{name}: {} face(s), {fitted} fitted → {}", recon.faces.len(), args.out.display());
+        for (k, f) in recon.faces.iter().enumerate() {
+            match &f.fit {
+                Ok(fit) => println!("  face {}: landmark residual {:.2} px rms", k + 1, fit.landmark_rms_px),
+                Err(e) => println!("  face {}: not fitted: {e}", k + 1),
+            }
+        }
+    }
+    Ok(())
+}
+
+fn write_face(model: &MorphableModel, record: &FaceRecord, base: &Path, meshes: bool) -> anyhow::Result<()> {
+    let with = |ext: &str| PathBuf::from(format!("{}.{ext}", base.display()));
+    let json = with("json");
+    std::fs::write(&json, serde_json::to_vec_pretty(record)?).with_context(|| format!("writing {}", json.display()))?;
+    if !meshes {
+        return Ok(());
+    }
+    let mesh = outputs::fitted_mesh(model, &record.coefficients)?;
+    let create = |p: &Path| {
+        std::fs::File::create(p).map(std::io::BufWriter::new).with_context(|| format!("creating {}", p.display()))
+    };
+    glb::write_glb(&mesh, create(&with("glb"))?)?;
+    ply::write_ply(&mesh, create(&with("ply"))?)?;
+    let mtl = with("mtl");
+    let mtl_name = mtl.file_name().map(|n| n.to_string_lossy().into_owned());
+    obj::write_obj(&mesh, create(&with("obj"))?, mtl_name.as_deref())?;
+    obj::write_mtl(create(&mtl)?)?;
+    Ok(())
+}

@@ -1,0 +1,22 @@
+//! Reconstruction by fitting (DESIGN §6): the morphable model fitted to a face in a photo.
+//!
+//! * [`camera`] — the crop camera: the fov-30° perspective camera of DESIGN §4 looking at a
+//!   face's 224-px square crop, with its projection's Jacobian. Fits happen in this frame,
+//!   so that every face, whatever its size in the photo, is fitted at one scale; results
+//!   map back to image pixels through the crop's [`facerecon_vision::crop::CropTransform`].
+//! * [`subset`] — a few model vertices (landmarks, contour candidates) with their rows of
+//!   the identity and expression bases, evaluated without touching the rest of the mesh.
+//! * [`contour`] — which vertex each jaw landmark (iBUG 1–17) sits on under a given pose.
+//! * [`landmark_fit`] — pose, then identity and expression by regularised least squares,
+//!   alternating (expressions kept in [0, 1]).
+//!
+//! Plain CPU math in f64 (nalgebra for the small dense systems); no tokio, no burn.
+
+pub mod camera;
+pub mod contour;
+pub mod error;
+pub mod landmark_fit;
+pub mod subset;
+
+pub use error::FitError;
+pub use landmark_fit::{LandmarkFit, LandmarkFitSettings, LandmarkFitter};

@@ -1,0 +1,206 @@
+//! The reconstruction pipeline (DESIGN §1): photo bytes and options in, faces with their
+//! fitted coefficients, meshes and pictures out. `facerecon fit` and the service call this
+//! one function ([`Pipeline::reconstruct`]); nothing here knows about files or sockets.
+//!
+//! Stages: decode (with limits) → faces (detected, or the caller's boxes, or the caller's
+//! 68 landmarks) → per face, in parallel: the crop frame ([`CropTransform`]) and the
+//! landmark fit in it ([`facerecon_fit::LandmarkFitter`]) → results mapped back to image
+//! pixels. Meshes and pictures are made on demand from a result ([`outputs`]).
+//!
+//! Refinement levels: [`Refine::Landmarks`] is the one built; the photometric fit and the
+//! displacement stage come with the fitting work still open.
+
+pub mod outputs;
+
+use std::sync::Arc;
+
+use facerecon_fit::{FitError, LandmarkFit, LandmarkFitter};
+use facerecon_model::{ErrorKind, MorphableModel};
+use facerecon_vision::crop::{self, Bucket, CROP_SIZE, CropTransform};
+use facerecon_vision::decode::{self, DecodeLimits};
+use facerecon_vision::face::FaceBox;
+use facerecon_vision::pipeline::{Face, FrontEnd, FrontEndError};
+use image::RgbImage;
+use rayon::prelude::*;
+
+/// How far to reconstruct.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Refine {
+    /// Pose, identity and expression from the 68 landmarks (milliseconds per face).
+    #[default]
+    Landmarks,
+}
+
+/// Where the faces come from.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub enum FaceSource {
+    /// The front end's detector and landmark predictor.
+    #[default]
+    Detect,
+    /// The caller's face boxes (image pixels); landmarks are predicted in each.
+    Boxes(Vec<FaceBox>),
+    /// The caller's 68 landmarks per face (image pixels, iBUG order).
+    Landmarks(Vec<Vec<[f32; 2]>>),
+}
+
+/// What to reconstruct.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Options {
+    pub refine: Refine,
+    pub faces: FaceSource,
+    /// At most this many faces per photo (largest first when detected).
+    pub max_faces: usize,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options { refine: Refine::Landmarks, faces: FaceSource::Detect, max_faces: 16 }
+    }
+}
+
+/// Why a photo could not be reconstructed. A photo without faces is not an error (it gives
+/// zero faces); neither is one face that cannot be fitted (it carries its own error).
+#[derive(Debug, thiserror::Error)]
+pub enum ReconError {
+    #[error("{0}")]
+    FrontEnd(FrontEndError),
+    #[error("invalid options: {0}")]
+    Options(String),
+}
+
+impl ReconError {
+    /// Whose fault (see [`ErrorKind`]).
+    pub fn kind(&self) -> ErrorKind {
+        match self {
+            ReconError::FrontEnd(e) => e.kind(),
+            ReconError::Options(_) => ErrorKind::Input,
+        }
+    }
+}
+
+impl From<FrontEndError> for ReconError {
+    fn from(e: FrontEndError) -> Self {
+        ReconError::FrontEnd(e)
+    }
+}
+
+/// One face's reconstruction.
+#[derive(Clone, Debug)]
+pub struct FaceRecon {
+    /// Detection, 68 input landmarks, box, bucket (image pixels).
+    pub face: Face,
+    /// Crop pixels ↔ image pixels for this face; the fit's camera looks at the crop.
+    pub crop: CropTransform,
+    /// The fit, or why this face could not be fitted (too small, degenerate landmarks …).
+    pub fit: Result<FaceFit, FaceError>,
+}
+
+/// A fitted face.
+#[derive(Clone, Debug)]
+pub struct FaceFit {
+    /// Coefficients in the crop camera's frame (DESIGN §4's camera on the 224² crop).
+    pub landmark_fit: LandmarkFit,
+    /// The fitted model's 68 landmark vertices projected into the image, pixels.
+    pub fitted_landmarks: Vec<[f32; 2]>,
+    /// Root mean square landmark residual, image pixels.
+    pub landmark_rms_px: f32,
+}
+
+/// Why one face of a photo was not fitted.
+#[derive(Clone, Debug, thiserror::Error, PartialEq)]
+pub enum FaceError {
+    #[error("face too small to reconstruct: its crop is {side:.0} px, at least 32 px are needed")]
+    TooSmall { side: f32 },
+    #[error("{0}")]
+    Fit(String),
+}
+
+/// A reconstructed photo.
+#[derive(Clone, Debug)]
+pub struct Reconstruction {
+    /// The decoded photo, EXIF orientation applied (the frame of every pixel coordinate).
+    pub image: RgbImage,
+    pub faces: Vec<FaceRecon>,
+}
+
+/// The configured pipeline: model, front end and fitter, loaded once and shared.
+pub struct Pipeline {
+    model: Arc<MorphableModel>,
+    front: FrontEnd,
+    fitter: LandmarkFitter,
+    pub limits: DecodeLimits,
+}
+
+impl Pipeline {
+    pub fn new(model: Arc<MorphableModel>, front: FrontEnd) -> Result<Self, FitError> {
+        let fitter = LandmarkFitter::new(&model)?;
+        Ok(Pipeline { model, front: front.with_crops(false), fitter, limits: DecodeLimits::default() })
+    }
+
+    pub fn model(&self) -> &Arc<MorphableModel> {
+        &self.model
+    }
+
+    pub fn fitter(&self) -> &LandmarkFitter {
+        &self.fitter
+    }
+
+    /// Decodes `bytes` (within [`Self::limits`]) and reconstructs every face.
+    pub fn reconstruct(&self, bytes: &[u8], options: &Options) -> Result<Reconstruction, ReconError> {
+        let image = decode::decode_with_limits(bytes, &self.limits).map_err(FrontEndError::from)?;
+        self.reconstruct_image(image, options)
+    }
+
+    /// Reconstructs every face of a decoded image.
+    pub fn reconstruct_image(&self, image: RgbImage, options: &Options) -> Result<Reconstruction, ReconError> {
+        if options.max_faces == 0 {
+            return Err(ReconError::Options("max_faces must be at least 1".into()));
+        }
+        let faces: Vec<Face> = match &options.faces {
+            FaceSource::Detect => {
+                let mut f = self.front.run(&image)?;
+                f.truncate(options.max_faces);
+                f
+            }
+            FaceSource::Boxes(b) => {
+                check_count(b.len(), options.max_faces)?;
+                self.front.run_boxes(&image, b)?
+            }
+            FaceSource::Landmarks(sets) => {
+                check_count(sets.len(), options.max_faces)?;
+                sets.iter().map(|p| self.front.face_from_landmarks(&image, p)).collect::<Result<_, _>>()?
+            }
+        };
+        let faces = faces.into_par_iter().map(|face| self.fit_face(face)).collect();
+        Ok(Reconstruction { image, faces })
+    }
+
+    /// The landmark fit of one face in its crop frame.
+    pub fn fit_face(&self, face: Face) -> FaceRecon {
+        let (left, top, side) = crop::crop_square(&face.landmark_box);
+        let crop = CropTransform::from_square(left, top, side.max(1e-3), CROP_SIZE);
+        let fit = if face.bucket == Bucket::TooSmall {
+            Err(FaceError::TooSmall { side })
+        } else {
+            let pts: Vec<[f32; 2]> = face.landmarks.points.iter().map(|p| crop.to_crop(*p)).collect();
+            match self.fitter.fit(&pts, Some(&face.landmarks.confidence)) {
+                Ok(landmark_fit) => {
+                    let fitted_landmarks: Vec<[f32; 2]> =
+                        landmark_fit.fitted.iter().map(|q| crop.to_image(*q)).collect();
+                    let landmark_rms_px = landmark_fit.rms_px / crop.scale;
+                    Ok(FaceFit { landmark_fit, fitted_landmarks, landmark_rms_px })
+                }
+                Err(e) => Err(FaceError::Fit(e.to_string())),
+            }
+        };
+        FaceRecon { face, crop, fit }
+    }
+}
+
+fn check_count(given: usize, limit: usize) -> Result<(), ReconError> {
+    if given > limit {
+        return Err(ReconError::FrontEnd(FrontEndError::TooManyFaces { given, limit }));
+    }
+    Ok(())
+}

@@ -1,0 +1,170 @@
+//! What a reconstruction is turned into: the fitted mesh, the coefficient record (JSON),
+//! and the overlay picture.
+
+use facerecon_model::lit::LitFace;
+use facerecon_model::{Coefficients, Extent, Mesh, ModelError, MorphableModel};
+use facerecon_raster::{Camera, RenderError, RenderJob, cpu};
+use facerecon_vision::crop::{CROP_SIZE, CropTransform};
+use image::RgbImage;
+
+use crate::{FaceRecon, Reconstruction};
+
+/// Version tag of [`FaceRecord`]'s JSON layout.
+pub const RECORD_FORMAT: &str = "facerecon-fit/1";
+
+/// The fitted face-area mesh: camera space of the crop camera (mm), model albedo as vertex
+/// colours (shaded by the coefficients' light), normals and UVs.
+pub fn fitted_mesh(model: &MorphableModel, c: &Coefficients) -> Result<Mesh, ModelError> {
+    let mut lit = LitFace::default();
+    lit.update(model, c)?;
+    Ok(lit.to_mesh(model))
+}
+
+/// One face's record, in the layout of the ground truth `facerecon synth` writes for its
+/// coefficients (identity, expression, albedo, light 25×3, rotation axis-angle, translation
+/// mm), plus expression weights by name, the camera and crop that give the coefficients
+/// their meaning, and fit residuals.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct FaceRecord {
+    pub format: String,
+    pub model: String,
+    pub model_format_version: u32,
+    /// `x0, y0, x1, y1` of the face in image pixels (the detection, or the caller's box).
+    #[serde(rename = "box")]
+    pub face_box: [f32; 4],
+    /// The 68 input points, image pixels (0-based, pixel centres at integers).
+    pub landmarks: Vec<[f32; 2]>,
+    /// The fitted model's 68 landmark vertices projected into the image.
+    pub fitted_landmarks: Vec<[f32; 2]>,
+    pub coefficients: Coefficients,
+    /// Expression weights by name (ARKit names for ICT).
+    pub expression_weights: Vec<(String, f32)>,
+    /// The camera of the coefficients: DESIGN §4's (fov 30°, aspect 1) looking at the
+    /// face's square crop of `crop_size` pixels; `crop` maps image pixels onto it.
+    pub camera: RecordCamera,
+    pub crop: CropTransform,
+    pub crop_size: u32,
+    pub refine: crate::Refine,
+    pub residuals: Residuals,
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct RecordCamera {
+    pub fov_y_deg: f32,
+    pub near_mm: f32,
+    pub far_mm: f32,
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct Residuals {
+    /// Root mean square of fitted − input landmarks, image pixels.
+    pub landmark_rms_px: f32,
+    /// The same relative to √(w·h) of the input landmarks' box (a size-free figure).
+    pub landmark_rms_relative: f32,
+}
+
+/// The record of a fitted face (`None` when the face was not fitted).
+pub fn face_record(model: &MorphableModel, face: &FaceRecon) -> Option<FaceRecord> {
+    let fit = face.fit.as_ref().ok()?;
+    let c = &fit.landmark_fit.coefficients;
+    let b = face.face.detection.face_box;
+    let lb = face.face.landmark_box;
+    let norm = (lb.width() * lb.height()).sqrt().max(1e-6);
+    let names = &model.meta().expression_names;
+    let cam = Camera::default();
+    Some(FaceRecord {
+        format: RECORD_FORMAT.into(),
+        model: model.meta().name.clone(),
+        model_format_version: model.meta().format_version,
+        face_box: [b.x0, b.y0, b.x1, b.y1],
+        landmarks: face.face.landmarks.points.clone(),
+        fitted_landmarks: fit.fitted_landmarks.clone(),
+        coefficients: c.clone(),
+        expression_weights: c
+            .expression
+            .iter()
+            .enumerate()
+            .map(|(k, w)| (names.get(k).cloned().unwrap_or_else(|| format!("mode{k}")), *w))
+            .collect(),
+        camera: RecordCamera { fov_y_deg: cam.fov_y.to_degrees(), near_mm: cam.near, far_mm: cam.far },
+        crop: face.crop,
+        crop_size: CROP_SIZE,
+        refine: crate::Refine::Landmarks,
+        residuals: Residuals {
+            landmark_rms_px: fit.landmark_rms_px,
+            landmark_rms_relative: fit.landmark_rms_px / norm,
+        },
+    })
+}
+
+/// Largest side of a face's rendering for the overlay, pixels.
+const MAX_RENDER_SIDE: u32 = 1024;
+
+/// The photo with every fitted face's mesh blended over it (`opacity` ∈ [0, 1]), shaded so
+/// that the shape reads (grey, light from the upper front). Each face is rendered in its
+/// own crop frame at about the photo's resolution, then mapped onto the photo.
+pub fn overlay(model: &MorphableModel, recon: &Reconstruction, opacity: f32) -> Result<RgbImage, RenderError> {
+    let mut out = recon.image.clone();
+    let opacity = opacity.clamp(0.0, 1.0);
+    for face in &recon.faces {
+        let Ok(fit) = &face.fit else { continue };
+        let Ok(mesh) = fitted_mesh(model, &fit.landmark_fit.coefficients) else { continue };
+        let normals = mesh.normals.clone().unwrap_or_default();
+        let colors = shape_shading(&normals);
+        let side = (CROP_SIZE as f32 / face.crop.scale).round().clamp(16.0, MAX_RENDER_SIDE as f32) as u32;
+        let job = RenderJob {
+            positions: &mesh.positions,
+            triangles: model.extent_triangles(Extent::Face),
+            colors: &colors,
+            normals: &normals,
+            camera: Camera::default(),
+            width: side,
+            height: side,
+        };
+        let frame = cpu::render(&job)?;
+        blend(&mut out, &frame, &face.crop, side, opacity);
+    }
+    Ok(out)
+}
+
+/// Grey shading of camera-space normals: ambient plus a light from the upper front.
+pub fn shape_shading(normals: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    let l = glam::Vec3::new(0.3, 0.4, 1.0).normalize();
+    normals
+        .iter()
+        .map(|n| {
+            let s = 0.12 + 0.8 * glam::Vec3::from(*n).dot(l).max(0.0);
+            [s * 0.95, s * 0.9, s * 0.85]
+        })
+        .collect()
+}
+
+/// Blends a crop-frame rendering of `side` pixels onto the photo (nearest sample).
+fn blend(out: &mut RgbImage, frame: &facerecon_raster::Frame, crop: &CropTransform, side: u32, opacity: f32) {
+    let (w, h) = out.dimensions();
+    // The square's extent in the image.
+    let a = crop.to_image([-0.5, -0.5]);
+    let b = crop.to_image([CROP_SIZE as f32 - 0.5, CROP_SIZE as f32 - 0.5]);
+    let (x0, y0) = (a[0].floor().max(0.0) as u32, a[1].floor().max(0.0) as u32);
+    let (x1, y1) = (b[0].ceil().min(w as f32) as u32, b[1].ceil().min(h as f32) as u32);
+    let to_render = side as f32 / CROP_SIZE as f32;
+    for y in y0..y1 {
+        for x in x0..x1 {
+            let q = crop.to_crop([x as f32, y as f32]);
+            let (u, v) = ((q[0] + 0.5) * to_render - 0.5, (q[1] + 0.5) * to_render - 0.5);
+            let (u, v) = (u.round(), v.round());
+            if u < 0.0 || v < 0.0 || u >= side as f32 || v >= side as f32 {
+                continue;
+            }
+            let i = frame.visibility.index(u as u32, v as u32);
+            if !frame.visibility.covered(i) {
+                continue;
+            }
+            let c = frame.color[i];
+            let px = out.get_pixel_mut(x, y);
+            for (p, &r) in px.0.iter_mut().zip(&c[..3]) {
+                *p = ((1.0 - opacity) * *p as f32 + opacity * r as f32).round().clamp(0.0, 255.0) as u8;
+            }
+        }
+    }
+}

@@ -1,0 +1,146 @@
+//! The pipeline end to end on real photos (faces-300w), its outputs re-read by independent
+//! parsers (gltf, ply-rs, tobj), and bad input: each gives a clear error or a sane result.
+
+use std::sync::{Arc, OnceLock};
+
+use facerecon_model::ErrorKind;
+use facerecon_model::mesh::{glb, obj, ply};
+use facerecon_recon::outputs::{self, FaceRecord};
+use facerecon_recon::{FaceError, FaceSource, Options, Pipeline, ReconError};
+use facerecon_vision::face::FaceBox;
+use facerecon_vision::pipeline::FrontEnd;
+
+fn pipeline() -> &'static Pipeline {
+    static P: OnceLock<Pipeline> = OnceLock::new();
+    P.get_or_init(|| {
+        let model = facerecon_model::ict::load_default().unwrap();
+        let front = FrontEnd::load_standard(facerecon_vision::landmarks::DEFAULT_MODEL_PATH.as_ref()).unwrap();
+        Pipeline::new(model, front).unwrap()
+    })
+}
+
+fn photo(rel: &str) -> (Vec<u8>, Vec<[f32; 2]>) {
+    let dir = facerecon_model::ict::shared_dir().join("data/faces-300w");
+    let bytes = std::fs::read(dir.join(rel)).unwrap();
+    let pts = facerecon_vision::pts::read(&std::fs::read(dir.join(rel).with_extension("pts")).unwrap()).unwrap();
+    (bytes, pts)
+}
+
+fn nme(a: &[[f32; 2]], truth: &[[f32; 2]]) -> f32 {
+    let b = FaceBox::of_points(truth.iter().copied()).unwrap();
+    let e: f32 = a.iter().zip(truth).map(|(p, q)| ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2)).sqrt()).sum();
+    e / a.len() as f32 / (b.width() * b.height()).sqrt()
+}
+
+fn png(img: &image::RgbImage) -> Vec<u8> {
+    let mut out = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut out, image::ImageFormat::Png).unwrap();
+    out.into_inner()
+}
+
+#[test]
+fn annotated_and_detected_faces_are_fitted_and_exported() {
+    let p = pipeline();
+    let (bytes, truth) = photo("lfpw/testset/image_0003.png");
+    for (name, faces) in [("annotation", FaceSource::Landmarks(vec![truth.clone()])), ("detected", FaceSource::Detect)]
+    {
+        let r = p.reconstruct(&bytes, &Options { faces, ..Default::default() }).unwrap();
+        assert_eq!(r.faces.len(), 1, "{name}");
+        let fit = r.faces[0].fit.as_ref().unwrap();
+        let e = nme(&fit.fitted_landmarks[17..], &truth[17..]);
+        eprintln!("{name}: inner-49 NME {:.2} %", 100.0 * e);
+        assert!(e < 0.035, "{name}: inner-49 NME {e}");
+
+        let record = outputs::face_record(p.model(), &r.faces[0]).unwrap();
+        let json = serde_json::to_string(&record).unwrap();
+        let back: FaceRecord = serde_json::from_str(&json).unwrap();
+        assert_eq!(back.coefficients, record.coefficients);
+        assert_eq!(back.expression_weights.len(), 53);
+        assert_eq!(back.expression_weights[0].0, "browDown_L");
+
+        let mesh = outputs::fitted_mesh(p.model(), &record.coefficients).unwrap();
+        let n = p.model().face_vertex_count();
+        let mut g = Vec::new();
+        glb::write_glb(&mesh, &mut g).unwrap();
+        let gltf = gltf::Gltf::from_slice(&g).expect("valid glTF");
+        let blob = gltf.blob.clone().unwrap();
+        let prim = gltf.meshes().next().unwrap().primitives().next().unwrap();
+        let pos: Vec<[f32; 3]> = prim.reader(|_| Some(&blob[..])).read_positions().unwrap().collect();
+        assert_eq!(pos, mesh.positions);
+        assert_eq!(pos.len(), n);
+        let mut pl = Vec::new();
+        ply::write_ply(&mesh, &mut pl).unwrap();
+        let parsed = ply_rs_bw::parser::Parser::<ply_rs_bw::ply::DefaultElement>::new().read_ply(&mut &pl[..]).unwrap();
+        assert_eq!(parsed.payload["vertex"].len(), n);
+        assert_eq!(parsed.payload["face"].len(), p.model().face_triangle_count());
+        let mut o = Vec::new();
+        obj::write_obj(&mesh, &mut o, None).unwrap();
+        let opts = tobj::LoadOptions { single_index: true, triangulate: false, ..Default::default() };
+        let (models, _) = tobj::load_obj_buf(&mut &o[..], &opts, |_| Err(tobj::LoadError::OpenFileFailed)).unwrap();
+        assert_eq!(models[0].mesh.positions.len(), 3 * n);
+        // Camera-space mesh in front of the camera, at a face's distance.
+        assert!(mesh.positions.iter().all(|q| q[2] < -100.0 && q[2] > -2000.0));
+
+        let ov = outputs::overlay(p.model(), &r, 0.85).unwrap();
+        assert_eq!(ov.dimensions(), r.image.dimensions());
+        assert_ne!(ov, r.image, "{name}: the overlay draws the face");
+    }
+}
+
+#[test]
+fn photos_without_faces_give_zero_faces() {
+    let p = pipeline();
+    for fill in [0u8, 255] {
+        let img = image::RgbImage::from_pixel(320, 240, image::Rgb([fill; 3]));
+        let r = p.reconstruct(&png(&img), &Options::default()).unwrap();
+        assert!(r.faces.is_empty());
+    }
+    let r = p.reconstruct(&png(&image::RgbImage::new(1, 1)), &Options::default()).unwrap();
+    assert!(r.faces.is_empty());
+}
+
+#[test]
+fn bad_input_gets_a_clear_error_of_the_callers_kind() {
+    let p = pipeline();
+    let (bytes, truth) = photo("lfpw/testset/image_0003.png");
+    let input = |r: Result<facerecon_recon::Reconstruction, ReconError>| {
+        let e = r.expect_err("an error");
+        assert_eq!(e.kind(), ErrorKind::Input, "{e}");
+        e.to_string()
+    };
+    assert!(input(p.reconstruct(b"not an image at all", &Options::default())).contains("unknown image format"));
+    assert!(input(p.reconstruct(&[], &Options::default())).contains("empty"));
+    assert!(input(p.reconstruct(&bytes[..bytes.len() / 3], &Options::default())).contains("truncated"));
+    let mut nan = truth.clone();
+    nan[30] = [f32::NAN, 1.0];
+    let o = |faces| Options { faces, ..Default::default() };
+    assert!(input(p.reconstruct(&bytes, &o(FaceSource::Landmarks(vec![nan])))).contains("point 31"));
+    let far: Vec<[f32; 2]> = truth.iter().map(|q| [q[0] + 1e5, q[1]]).collect();
+    assert!(input(p.reconstruct(&bytes, &o(FaceSource::Landmarks(vec![far])))).contains("outside"));
+    let degenerate = FaceBox { x0: 10.0, y0: 10.0, x1: 10.0, y1: 50.0 };
+    assert!(input(p.reconstruct(&bytes, &o(FaceSource::Boxes(vec![degenerate])))).contains("invalid face box"));
+    assert!(input(p.reconstruct(&bytes, &Options { max_faces: 0, ..Default::default() })).contains("max_faces"));
+    let many = FaceSource::Boxes(vec![FaceBox { x0: 1.0, y0: 1.0, x1: 50.0, y1: 50.0 }; 17]);
+    assert!(input(p.reconstruct(&bytes, &o(many))).contains("at most"));
+}
+
+#[test]
+fn faces_cut_by_the_border_and_tiny_faces_are_handled() {
+    let p = pipeline();
+    let (bytes, truth) = photo("lfpw/testset/image_0003.png");
+    // Half the face left of the image: still fitted.
+    let b = FaceBox::of_points(truth.iter().copied()).unwrap();
+    let shift = b.x0 + 0.5 * b.width();
+    let cut: Vec<[f32; 2]> = truth.iter().map(|q| [q[0] - shift, q[1]]).collect();
+    let r = p.reconstruct(&bytes, &Options { faces: FaceSource::Landmarks(vec![cut]), ..Default::default() }).unwrap();
+    assert!(r.faces[0].fit.is_ok());
+    // A face 20 px across: reported, not fitted.
+    let c = b.center();
+    let tiny: Vec<[f32; 2]> = truth
+        .iter()
+        .map(|q| [c[0] + (q[0] - c[0]) * 20.0 / b.width(), c[1] + (q[1] - c[1]) * 20.0 / b.width()])
+        .collect();
+    let r = p.reconstruct(&bytes, &Options { faces: FaceSource::Landmarks(vec![tiny]), ..Default::default() }).unwrap();
+    assert!(matches!(r.faces[0].fit, Err(FaceError::TooSmall { .. })));
+    let _ = Arc::clone(p.model());
+}
