@@ -97,8 +97,10 @@ pub fn face_record(model: &MorphableModel, face: &FaceRecon) -> Option<FaceRecor
     })
 }
 
-/// Largest side of a face's rendering for the overlay, pixels.
+/// Largest side of a face's crop rendering for the overlay, pixels.
 const MAX_RENDER_SIDE: u32 = 1024;
+/// The overlay renders this many crop sides around the crop's centre.
+const PAD: f32 = 1.6;
 
 /// The photo with every fitted face's mesh blended over it (`opacity` ∈ [0, 1]), shaded so
 /// that the shape reads (grey, light from the upper front). Each face is rendered in its
@@ -111,18 +113,24 @@ pub fn overlay(model: &MorphableModel, recon: &Reconstruction, opacity: f32) -> 
         let Ok(mesh) = fitted_mesh(model, &fit.landmark_fit.coefficients) else { continue };
         let normals = mesh.normals.clone().unwrap_or_default();
         let colors = shape_shading(&normals);
+        // The crop frame widened by PAD on every side (the face area reaches beyond the
+        // crop: forehead, neck): fov grown so that tan(fov/2) scales by `PAD`, and the
+        // crop's pixels sit in the middle of the rendering.
         let side = (CROP_SIZE as f32 / face.crop.scale).round().clamp(16.0, MAX_RENDER_SIDE as f32) as u32;
+        let full = (side as f32 * PAD).round() as u32;
+        let base = Camera::default();
+        let camera = Camera { fov_y: 2.0 * ((0.5 * base.fov_y).tan() * full as f32 / side as f32).atan(), ..base };
         let job = RenderJob {
             positions: &mesh.positions,
             triangles: model.extent_triangles(Extent::Face),
             colors: &colors,
             normals: &normals,
-            camera: Camera::default(),
-            width: side,
-            height: side,
+            camera,
+            width: full,
+            height: full,
         };
         let frame = cpu::render(&job)?;
-        blend(&mut out, &frame, &face.crop, side, opacity);
+        blend(&mut out, &frame, &face.crop, side, full, opacity);
     }
     Ok(out)
 }
@@ -139,21 +147,31 @@ pub fn shape_shading(normals: &[[f32; 3]]) -> Vec<[f32; 3]> {
         .collect()
 }
 
-/// Blends a crop-frame rendering of `side` pixels onto the photo (nearest sample).
-fn blend(out: &mut RgbImage, frame: &facerecon_raster::Frame, crop: &CropTransform, side: u32, opacity: f32) {
+/// Blends a rendering of `full` pixels, whose middle `side` pixels are the crop, onto the
+/// photo (nearest sample).
+fn blend(
+    out: &mut RgbImage,
+    frame: &facerecon_raster::Frame,
+    crop: &CropTransform,
+    side: u32,
+    full: u32,
+    opacity: f32,
+) {
     let (w, h) = out.dimensions();
-    // The square's extent in the image.
-    let a = crop.to_image([-0.5, -0.5]);
-    let b = crop.to_image([CROP_SIZE as f32 - 0.5, CROP_SIZE as f32 - 0.5]);
+    // The rendering's extent in crop pixels, then in the image.
+    let margin = 0.5 * (full as f32 - side as f32) * CROP_SIZE as f32 / side as f32;
+    let a = crop.to_image([-0.5 - margin, -0.5 - margin]);
+    let b = crop.to_image([CROP_SIZE as f32 - 0.5 + margin, CROP_SIZE as f32 - 0.5 + margin]);
     let (x0, y0) = (a[0].floor().max(0.0) as u32, a[1].floor().max(0.0) as u32);
     let (x1, y1) = (b[0].ceil().min(w as f32) as u32, b[1].ceil().min(h as f32) as u32);
     let to_render = side as f32 / CROP_SIZE as f32;
     for y in y0..y1 {
         for x in x0..x1 {
             let q = crop.to_crop([x as f32, y as f32]);
-            let (u, v) = ((q[0] + 0.5) * to_render - 0.5, (q[1] + 0.5) * to_render - 0.5);
+            let offset = 0.5 * (full as f32 - side as f32);
+            let (u, v) = ((q[0] + 0.5) * to_render - 0.5 + offset, (q[1] + 0.5) * to_render - 0.5 + offset);
             let (u, v) = (u.round(), v.round());
-            if u < 0.0 || v < 0.0 || u >= side as f32 || v >= side as f32 {
+            if u < 0.0 || v < 0.0 || u >= full as f32 || v >= full as f32 {
                 continue;
             }
             let i = frame.visibility.index(u as u32, v as u32);
