@@ -7,6 +7,8 @@
 //! * [`subset`] — a few model vertices (landmarks, contour candidates) with their rows of
 //!   the identity and expression bases, evaluated without touching the rest of the mesh.
 //! * [`contour`] — which vertex each jaw landmark (iBUG 1–17) sits on under a given pose.
+//! * [`decoder`] — the differentiable decoder: forward and vector–Jacobian product per
+//!   primitive, each checked against finite differences.
 //! * [`landmark_fit`] — pose, then identity and expression by regularised least squares,
 //!   alternating (expressions kept in [0, 1]).
 //!
@@ -14,6 +16,7 @@
 
 pub mod camera;
 pub mod contour;
+pub mod decoder;
 pub mod error;
 pub mod landmark_fit;
 pub mod subset;

@@ -271,6 +271,76 @@ pub fn sh_basis(n: [f32; 3]) -> [f32; SH_COEFFS] {
     std::array::from_fn(|k| SH_NORM[k] * p[k])
 }
 
+/// [`sh_basis`] in f64 with its Jacobian `∂φ_k/∂n` (rows k, columns x, y, z), for the
+/// differentiable decoder and its finite-difference tests. The same polynomials, written
+/// out with their partial derivatives.
+pub fn sh_basis_jacobian_f64(n: [f64; 3]) -> ([f64; SH_COEFFS], [[f64; 3]; SH_COEFFS]) {
+    let [x, y, z] = n;
+    let (x2, y2, z2) = (x * x, y * y, z * z);
+    // (value, ∂x, ∂y, ∂z) of each polynomial.
+    let p: [[f64; 4]; SH_COEFFS] = [
+        [1.0, 0.0, 0.0, 0.0],
+        [y, 0.0, 1.0, 0.0],
+        [z, 0.0, 0.0, 1.0],
+        [x, 1.0, 0.0, 0.0],
+        [x * y, y, x, 0.0],
+        [y * z, 0.0, z, y],
+        [3.0 * z2 - 1.0, 0.0, 0.0, 6.0 * z],
+        [x * z, z, 0.0, x],
+        [x2 - y2, 2.0 * x, -2.0 * y, 0.0],
+        [y * (3.0 * x2 - y2), 6.0 * x * y, 3.0 * x2 - 3.0 * y2, 0.0],
+        [x * y * z, y * z, x * z, x * y],
+        [y * (5.0 * z2 - 1.0), 0.0, 5.0 * z2 - 1.0, 10.0 * y * z],
+        [z * (5.0 * z2 - 3.0), 0.0, 0.0, 15.0 * z2 - 3.0],
+        [x * (5.0 * z2 - 1.0), 5.0 * z2 - 1.0, 0.0, 10.0 * x * z],
+        [z * (x2 - y2), 2.0 * x * z, -2.0 * y * z, x2 - y2],
+        [x * (x2 - 3.0 * y2), 3.0 * x2 - 3.0 * y2, -6.0 * x * y, 0.0],
+        [x * y * (x2 - y2), 3.0 * x2 * y - y2 * y, x2 * x - 3.0 * x * y2, 0.0],
+        [y * z * (3.0 * x2 - y2), 6.0 * x * y * z, 3.0 * x2 * z - 3.0 * y2 * z, y * (3.0 * x2 - y2)],
+        [x * y * (7.0 * z2 - 1.0), y * (7.0 * z2 - 1.0), x * (7.0 * z2 - 1.0), 14.0 * x * y * z],
+        [y * z * (7.0 * z2 - 3.0), 0.0, z * (7.0 * z2 - 3.0), y * (21.0 * z2 - 3.0)],
+        [(35.0 * z2 - 30.0) * z2 + 3.0, 0.0, 0.0, 140.0 * z2 * z - 60.0 * z],
+        [x * z * (7.0 * z2 - 3.0), z * (7.0 * z2 - 3.0), 0.0, x * (21.0 * z2 - 3.0)],
+        [(x2 - y2) * (7.0 * z2 - 1.0), 2.0 * x * (7.0 * z2 - 1.0), -2.0 * y * (7.0 * z2 - 1.0), 14.0 * z * (x2 - y2)],
+        [x * z * (x2 - 3.0 * y2), z * (3.0 * x2 - 3.0 * y2), -6.0 * x * y * z, x * (x2 - 3.0 * y2)],
+        [x2 * (x2 - 3.0 * y2) - y2 * (3.0 * x2 - y2), 4.0 * x2 * x - 12.0 * x * y2, -12.0 * x2 * y + 4.0 * y2 * y, 0.0],
+    ];
+    let mut v = [0.0; SH_COEFFS];
+    let mut j = [[0.0; 3]; SH_COEFFS];
+    for k in 0..SH_COEFFS {
+        let c = SH_NORM_F64[k];
+        v[k] = c * p[k][0];
+        j[k] = [c * p[k][1], c * p[k][2], c * p[k][3]];
+    }
+    (v, j)
+}
+
+/// [`SH_NORM`] to f64 precision (the tests check both tables against each other and the
+/// basis' orthonormality by quadrature).
+const SH_NORM_F64: [f64; SH_COEFFS] = {
+    let c0 = 0.282_094_791_773_878_14;
+    let c1 = 0.488_602_511_902_919_9;
+    let c2a = 1.092_548_430_592_079_2;
+    let c2b = 0.315_391_565_252_520_05;
+    let c2c = 0.546_274_215_296_039_6;
+    let c3a = 0.590_043_589_926_643_5;
+    let c3b = 2.890_611_442_640_554;
+    let c3c = 0.457_045_799_464_465_8;
+    let c3d = 0.373_176_332_590_115_4;
+    let c3e = 1.445_305_721_320_277;
+    let c4a = 2.503_342_941_796_704_5;
+    let c4b = 1.770_130_769_779_930_5;
+    let c4c = 0.946_174_695_757_560_1;
+    let c4d = 0.669_046_543_557_289_2;
+    let c4e = 0.105_785_546_915_204_2;
+    let c4f = 0.473_087_347_878_780_05;
+    let c4g = 0.625_835_735_449_176_1;
+    [
+        c0, c1, c1, c1, c2a, c2a, c2b, c2a, c2c, c3a, c3b, c3c, c3d, c3c, c3e, c3a, c4a, c4b, c4c, c4d, c4e, c4d, c4f,
+        c4b, c4g,
+    ]
+};
+
 /// The uniform "lit" light: `w_00 = √(4π)` per channel, all else 0, so that
 /// `w_iᵀ φ(n) = 1` for every normal.
 pub fn lit_light() -> [[f32; 3]; SH_COEFFS] {

@@ -415,3 +415,26 @@ fn block_normalisation_equals_glam() {
     super::normalize_or_zero(&mut v);
     assert_eq!(v, want);
 }
+
+#[test]
+fn sh_f64_basis_matches_f32_and_its_jacobian_matches_finite_differences() {
+    for (i, n) in [[0.0, 0.0, 1.0], [0.3, -0.5, 0.81], [-0.7, 0.1, -0.2], [0.577, 0.577, 0.577]].iter().enumerate() {
+        let n: [f64; 3] = *n;
+        let (v, j) = super::sh_basis_jacobian_f64(n);
+        let f = super::sh_basis([n[0] as f32, n[1] as f32, n[2] as f32]);
+        for k in 0..25 {
+            assert!((v[k] - f[k] as f64).abs() < 1e-5 * (1.0 + v[k].abs()), "case {i}, k {k}: {} vs {}", v[k], f[k]);
+        }
+        let h = 1e-6;
+        for a in 0..3 {
+            let (mut p, mut m) = (n, n);
+            p[a] += h;
+            m[a] -= h;
+            let (vp, vm) = (super::sh_basis_jacobian_f64(p).0, super::sh_basis_jacobian_f64(m).0);
+            for k in 0..25 {
+                let fd = (vp[k] - vm[k]) / (2.0 * h);
+                assert!((fd - j[k][a]).abs() < 1e-6 * (1.0 + fd.abs()), "k {k}, axis {a}: {fd} vs {}", j[k][a]);
+            }
+        }
+    }
+}

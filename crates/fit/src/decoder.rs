@@ -1,0 +1,28 @@
+//! The differentiable decoder (DESIGN §5), one module per primitive, each with its
+//! `forward` and its vector–Jacobian product (`vjp`: the gradient of `⟨g, forward(x)⟩` with
+//! respect to the inputs, for an upstream gradient `g`) side by side, as in nvdiffrast.
+//! Everything is f64 over plain slices so that the same definitions can later be wrapped as
+//! burn backward ops; every VJP is checked against central finite differences
+//! (`decoder/tests.rs`).
+//!
+//! * [`linear`] — `s̄ + U·w` (shape: identity + expression; albedo), face area.
+//! * [`pose`] — `R(q)·x + t`, axis-angle `q`.
+//! * [`project`] — the crop camera's perspective projection to pixels.
+//! * [`normals`] — area-weighted, normalised vertex normals.
+//! * [`shading`] — Lambertian SH colour `A ⊙ (Wᵀ φ(n))` (Eq. 3.1).
+//! * [`interpolate`] — attributes at pixels from a visibility buffer (triangle id and
+//!   barycentrics, not differentiated): the VJP with respect to the vertex attributes.
+//!
+//! Still to come: the barycentrics' derivative with respect to vertex positions and the
+//! analytic antialiasing at silhouette edges (the gradients of the photometric term at
+//! occlusion boundaries).
+
+pub mod interpolate;
+pub mod linear;
+pub mod normals;
+pub mod pose;
+pub mod project;
+pub mod shading;
+
+#[cfg(test)]
+mod tests;

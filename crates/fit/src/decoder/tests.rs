@@ -1,0 +1,293 @@
+//! Every VJP against central finite differences in f64: for random inputs `x`, a random
+//! upstream gradient `g` and random directions `d`,
+//! `⟨vjp(g), d⟩ ≈ ⟨g, (f(x + h·d) − f(x − h·d)) / 2h⟩`.
+
+use facerecon_model::{Extent, MorphableModel};
+use glam::DVec3;
+
+use super::*;
+use crate::camera::CropCamera;
+
+struct Lcg(u64);
+impl Lcg {
+    fn u(&mut self) -> f64 {
+        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((self.0 >> 11) as f64) / (1u64 << 53) as f64 * 2.0 - 1.0
+    }
+    fn v3(&mut self) -> DVec3 {
+        DVec3::new(self.u(), self.u(), self.u())
+    }
+    fn vecs(&mut self, n: usize) -> Vec<DVec3> {
+        (0..n).map(|_| self.v3()).collect()
+    }
+}
+
+fn dot3(a: &[DVec3], b: &[DVec3]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x.dot(*y)).sum()
+}
+
+fn axpy(x: &[DVec3], h: f64, d: &[DVec3]) -> Vec<DVec3> {
+    x.iter().zip(d).map(|(a, b)| *a + *b * h).collect()
+}
+
+/// Asserts `analytic ≈ numeric` relative to the larger magnitude.
+fn close(what: &str, analytic: f64, numeric: f64) {
+    let scale = analytic.abs().max(numeric.abs()).max(1e-8);
+    assert!((analytic - numeric).abs() <= 1e-5 * scale, "{what}: analytic {analytic} vs finite difference {numeric}");
+}
+
+/// A small closed mesh: a UV sphere (6 rings × 8 segments) with jittered radii, so that
+/// vertices have several incident triangles of different areas.
+fn mesh(rng: &mut Lcg) -> (Vec<DVec3>, Vec<[u32; 3]>) {
+    let (rings, segs) = (6u32, 8u32);
+    let mut p = vec![DVec3::new(0.0, 0.0, 1.0)];
+    for r in 1..rings {
+        let th = std::f64::consts::PI * r as f64 / rings as f64;
+        for s in 0..segs {
+            let ph = std::f64::consts::TAU * s as f64 / segs as f64;
+            p.push(DVec3::new(th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos()) * (1.0 + 0.1 * rng.u()));
+        }
+    }
+    p.push(DVec3::new(0.0, 0.0, -1.0));
+    let last = p.len() as u32 - 1;
+    let at = |r: u32, s: u32| 1 + (r - 1) * segs + s % segs;
+    let mut t = Vec::new();
+    for s in 0..segs {
+        t.push([0, at(1, s), at(1, s + 1)]);
+        t.push([last, at(rings - 1, s + 1), at(rings - 1, s)]);
+    }
+    for r in 1..rings - 1 {
+        for s in 0..segs {
+            t.push([at(r, s), at(r + 1, s), at(r + 1, s + 1)]);
+            t.push([at(r, s), at(r + 1, s + 1), at(r, s + 1)]);
+        }
+    }
+    (p, t)
+}
+
+#[test]
+fn pose_vjp() {
+    let mut rng = Lcg(1);
+    for q in [DVec3::new(0.3, -0.5, 0.2), DVec3::new(1e-9, 0.0, -2e-9), DVec3::new(2.0, 1.0, -0.7)] {
+        let x = rng.vecs(20);
+        let t = rng.v3();
+        let g = rng.vecs(20);
+        let grad = pose::vjp(&x, q, &g);
+        let h = 1e-6;
+        let dx = rng.vecs(20);
+        let f = |x: &[DVec3], q: DVec3, t: DVec3| dot3(&g, &pose::forward(x, q, t));
+        close(
+            "points",
+            dot3(&grad.points, &dx),
+            (f(&axpy(&x, h, &dx), q, t) - f(&axpy(&x, -h, &dx), q, t)) / (2.0 * h),
+        );
+        for k in 0..3 {
+            let mut e = DVec3::ZERO;
+            e[k] = h;
+            close("rotation", grad.rotation[k], (f(&x, q + e, t) - f(&x, q - e, t)) / (2.0 * h));
+            close("translation", grad.translation[k], (f(&x, q, t + e) - f(&x, q, t - e)) / (2.0 * h));
+        }
+    }
+}
+
+#[test]
+fn projection_vjp() {
+    let mut rng = Lcg(2);
+    let cam = CropCamera::crop();
+    let p: Vec<DVec3> = (0..30).map(|_| DVec3::new(60.0 * rng.u(), 60.0 * rng.u(), -450.0 + 50.0 * rng.u())).collect();
+    let g: Vec<[f64; 2]> = (0..30).map(|_| [rng.u(), rng.u()]).collect();
+    let f = |p: &[DVec3]| project::forward(&cam, p).iter().zip(&g).map(|(a, b)| a[0] * b[0] + a[1] * b[1]).sum::<f64>();
+    let grad = project::vjp(&cam, &p, &g);
+    let d = rng.vecs(30);
+    let h = 1e-4;
+    close("projection", dot3(&grad, &d), (f(&axpy(&p, h, &d)) - f(&axpy(&p, -h, &d))) / (2.0 * h));
+}
+
+#[test]
+fn normals_vjp() {
+    let mut rng = Lcg(3);
+    let (p, t) = mesh(&mut rng);
+    let g = rng.vecs(p.len());
+    let grad = normals::vjp(&p, &t, &g);
+    let h = 1e-6;
+    for _ in 0..5 {
+        let d = rng.vecs(p.len());
+        let f = |p: &[DVec3]| dot3(&g, &normals::forward(p, &t));
+        close("normals", dot3(&grad, &d), (f(&axpy(&p, h, &d)) - f(&axpy(&p, -h, &d))) / (2.0 * h));
+    }
+    // Against the model crate's f64 reference (an independent implementation).
+    let n = normals::forward(&p, &t);
+    let pf: Vec<[f32; 3]> = p.iter().map(|x| x.as_vec3().to_array()).collect();
+    let reference = facerecon_model::scene::vertex_normals(&pf, &t);
+    for (a, b) in n.iter().zip(&reference) {
+        assert!(a.distance(glam::Vec3::from(*b).as_dvec3()) < 1e-6);
+    }
+}
+
+#[test]
+fn shading_vjp() {
+    let mut rng = Lcg(4);
+    let n = 25;
+    let albedo: Vec<DVec3> = (0..n).map(|_| rng.v3() * 0.4 + DVec3::splat(0.5)).collect();
+    let normals: Vec<DVec3> = (0..n).map(|_| rng.v3().normalize()).collect();
+    let mut light = [[0.0; 3]; 25];
+    for l in light.iter_mut() {
+        *l = [rng.u(), rng.u(), rng.u()];
+    }
+    let g = rng.vecs(n);
+    let grad = shading::vjp(&albedo, &normals, &light, &g);
+    let f = |a: &[DVec3], nn: &[DVec3], l: &shading::Light| dot3(&g, &shading::forward(a, nn, l));
+    let h = 1e-6;
+    let d = rng.vecs(n);
+    close(
+        "albedo",
+        dot3(&grad.albedo, &d),
+        (f(&axpy(&albedo, h, &d), &normals, &light) - f(&axpy(&albedo, -h, &d), &normals, &light)) / (2.0 * h),
+    );
+    close(
+        "normals",
+        dot3(&grad.normals, &d),
+        (f(&albedo, &axpy(&normals, h, &d), &light) - f(&albedo, &axpy(&normals, -h, &d), &light)) / (2.0 * h),
+    );
+    for k in [0, 3, 7, 24] {
+        for c in 0..3 {
+            let (mut lp, mut lm) = (light, light);
+            lp[k][c] += h;
+            lm[k][c] -= h;
+            close("light", grad.light[k][c], (f(&albedo, &normals, &lp) - f(&albedo, &normals, &lm)) / (2.0 * h));
+        }
+    }
+    // Forward against the model crate's f32 shading (an independent loop).
+    let c = shading::forward(&albedo, &normals, &light);
+    let lf: [[f32; 3]; 25] = std::array::from_fn(|k| light[k].map(|x| x as f32));
+    for i in 0..n {
+        let s = facerecon_model::scene::sh_shading(normals[i].as_vec3().to_array(), &lf);
+        for ch in 0..3 {
+            assert!((c[i][ch] - albedo[i][ch] * s[ch] as f64).abs() < 1e-4);
+        }
+    }
+}
+
+#[test]
+fn interpolation_vjp() {
+    let mut rng = Lcg(5);
+    let mut vb = facerecon_raster::VisibilityBuffer::new(4, 3);
+    let tris = vec![[0u32, 1, 2], [2, 3, 0]];
+    for i in 0..12 {
+        if i % 3 != 0 {
+            vb.triangle[i] = (i % 2) as u32;
+            vb.bary[i] = [(0.5 + 0.4 * rng.u()) as f32 * 0.5, (0.5 + 0.4 * rng.u()) as f32 * 0.5];
+        }
+    }
+    let fp = interpolate::footprint(&vb, &tris);
+    assert_eq!(fp.len(), 8);
+    let attr = rng.vecs(4);
+    let g = rng.vecs(fp.len());
+    let grad = interpolate::vjp(&fp, 4, &g);
+    let d = rng.vecs(4);
+    let f = |a: &[DVec3]| dot3(&g, &interpolate::forward(&fp, a));
+    let h = 1e-6;
+    close("attributes", dot3(&grad, &d), (f(&axpy(&attr, h, &d)) - f(&axpy(&attr, -h, &d))) / (2.0 * h));
+    // Barycentric weights sum to one: a constant attribute interpolates to itself.
+    let one = vec![DVec3::splat(2.5); 4];
+    assert!(interpolate::forward(&fp, &one).iter().all(|v| v.distance(DVec3::splat(2.5)) < 1e-6));
+}
+
+fn model() -> std::sync::Arc<MorphableModel> {
+    facerecon_model::ict::load_default().unwrap()
+}
+
+#[test]
+fn linear_vjp_on_the_model() {
+    let model = model();
+    let mut rng = Lcg(6);
+    for block in [linear::Linear::Shape, linear::Linear::Albedo] {
+        let k = block.coefficient_count(&model);
+        let w: Vec<f64> = (0..k).map(|_| rng.u()).collect();
+        let n = model.extent_vertices(Extent::Face);
+        let g = rng.vecs(n);
+        let grad = block.vjp(&model, &g);
+        let f = |w: &[f64]| dot3(&g, &block.forward(&model, w));
+        for idx in [0, k / 2, k - 1] {
+            let h = 1e-3;
+            let (mut wp, mut wm) = (w.clone(), w.clone());
+            wp[idx] += h;
+            wm[idx] -= h;
+            close("linear", grad[idx], (f(&wp) - f(&wm)) / (2.0 * h));
+        }
+        // The forward against the model's own f32 evaluation (full-precision extent).
+        if block == linear::Linear::Shape {
+            let l = model.layout();
+            let (id, ex): (Vec<f32>, Vec<f32>) = (
+                w[..l.identity].iter().map(|x| *x as f32).collect(),
+                w[l.identity..].iter().map(|x| (x.abs()) as f32).collect(),
+            );
+            let wabs: Vec<f64> = id.iter().chain(&ex).map(|x| *x as f64).collect();
+            let ours = block.forward(&model, &wabs);
+            let theirs = model.shape(&id, &ex, Extent::Full).unwrap();
+            let max =
+                ours.iter().zip(&theirs).map(|(a, b)| a.distance(glam::Vec3::from(*b).as_dvec3())).fold(0.0, f64::max);
+            assert!(max < 1e-3, "{max} mm");
+        }
+    }
+}
+
+/// The chain coefficients → posed, lit vertex colours and projected landmarks, composed from
+/// the primitives' VJPs, against finite differences of the whole chain.
+#[test]
+fn chained_decoder_vjp() {
+    let model = model();
+    let mut rng = Lcg(7);
+    let l = model.layout();
+    let ws: Vec<f64> = (0..l.identity + l.expression)
+        .map(|i| if i < l.identity { 0.5 * rng.u() } else { 0.3 + 0.2 * rng.u() })
+        .collect();
+    let wa: Vec<f64> = (0..l.albedo).map(|_| 0.5 * rng.u()).collect();
+    let q = DVec3::new(0.1, -0.3, 0.05);
+    let t = DVec3::new(5.0, -3.0, -480.0);
+    let mut light = [[0.0; 3]; 25];
+    light[0] = [3.5; 3];
+    light[2] = [0.4, 0.3, 0.2];
+    let tris = model.extent_triangles(Extent::Face);
+    let cam = CropCamera::crop();
+    let lm: Vec<usize> = model.landmarks().iter().map(|&i| i as usize).collect();
+    let n = model.extent_vertices(Extent::Face);
+    let gc = rng.vecs(n);
+    let gl: Vec<[f64; 2]> = (0..68).map(|_| [rng.u(), rng.u()]).collect();
+    // L = ⟨gc, colours⟩ + ⟨gl, landmarks in pixels⟩.
+    let loss = |ws: &[f64], q: DVec3| {
+        let s = linear::Linear::Shape.forward(&model, ws);
+        let y = pose::forward(&s, q, t);
+        let nn = normals::forward(&y, tris);
+        let a = linear::Linear::Albedo.forward(&model, &wa);
+        let c = shading::forward(&a, &nn, &light);
+        let lmk: Vec<DVec3> = lm.iter().map(|&i| y[i]).collect();
+        let px = project::forward(&cam, &lmk);
+        dot3(&gc, &c) + px.iter().zip(&gl).map(|(p, g)| p[0] * g[0] + p[1] * g[1]).sum::<f64>()
+    };
+    // Backward.
+    let s = linear::Linear::Shape.forward(&model, &ws);
+    let y = pose::forward(&s, q, t);
+    let nn = normals::forward(&y, tris);
+    let a = linear::Linear::Albedo.forward(&model, &wa);
+    let gsh = shading::vjp(&a, &nn, &light, &gc);
+    let mut gy = normals::vjp(&y, tris, &gsh.normals);
+    let lmk: Vec<DVec3> = lm.iter().map(|&i| y[i]).collect();
+    for (i, g) in lm.iter().zip(project::vjp(&cam, &lmk, &gl)) {
+        gy[*i] += g;
+    }
+    let gp = pose::vjp(&s, q, &gy);
+    let gws = linear::Linear::Shape.vjp(&model, &gp.points);
+    let h = 1e-4;
+    for idx in [0, 7, l.identity + 3, l.identity + l.expression - 1] {
+        let (mut p, mut m) = (ws.clone(), ws.clone());
+        p[idx] += h;
+        m[idx] -= h;
+        close("chain: shape coefficient", gws[idx], (loss(&p, q) - loss(&m, q)) / (2.0 * h));
+    }
+    for k in 0..3 {
+        let mut e = DVec3::ZERO;
+        e[k] = 1e-6;
+        close("chain: rotation", gp.rotation[k], (loss(&ws, q + e) - loss(&ws, q - e)) / 2e-6);
+    }
+}
