@@ -146,6 +146,11 @@ impl Pipeline {
         &self.fitter
     }
 
+    /// Replaces the landmark fit's weights and caps (evaluations and sweeps).
+    pub fn set_fit_settings(&mut self, settings: facerecon_fit::LandmarkFitSettings) {
+        self.fitter.settings = settings;
+    }
+
     /// Decodes `bytes` (within [`Self::limits`]) and reconstructs every face.
     pub fn reconstruct(&self, bytes: &[u8], options: &Options) -> Result<Reconstruction, ReconError> {
         let image = decode::decode_with_limits(bytes, &self.limits).map_err(FrontEndError::from)?;

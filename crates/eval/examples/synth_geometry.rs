@@ -1,0 +1,160 @@
+//! Geometry error of the fit against synthetic ground truth (thesis §3.5.1 protocol):
+//! `facerecon synth` faces (default distribution, yaw ≤ 60°), N per resolution bucket; each
+//! reconstructed by the pipeline as a photo would be (detect → 68 landmarks → fit), and,
+//! as an upper bound of the landmark fit, from the exact 2D landmarks of the ground truth.
+//! Per face: the ground-truth face-area shape cropped to 95 mm around its nose tip, the
+//! predicted shape aligned by similarity ICP (start: the 68 landmark vertices), mean
+//! distance in mm, point-to-plane and point-to-point. Beside it, the mean face's own error
+//! on the same faces: a fit means something only where it beats that.
+//!
+//!     cargo run --release -p facerecon-eval --example synth_geometry -- [--per-bucket N] [--seed S] \
+//!         [--buckets 0,1,2,3] [--sigma S] [--lambda-id L] [--lambda-exp L]
+
+use facerecon_eval::align::Metric;
+use facerecon_eval::geometry::{self, ErrorStats, GeometryCase};
+use facerecon_model::scene::vertex_normals;
+use facerecon_model::{Coefficients, Extent, MorphableModel};
+use facerecon_recon::{FaceSource, Options, Pipeline};
+use facerecon_synth::{Generator, SynthConfig};
+use facerecon_vision::face::FaceBox;
+use facerecon_vision::pipeline::FrontEnd;
+use glam::DVec3;
+use rayon::prelude::*;
+
+const ICP_ITERATIONS: usize = 30;
+
+fn shape(model: &MorphableModel, identity: &[f32], expression: &[f32]) -> (Vec<DVec3>, Vec<DVec3>) {
+    let p = model.shape(identity, expression, Extent::Face).expect("shape");
+    let n = vertex_normals(&p, model.extent_triangles(Extent::Face));
+    let d = |v: &[[f32; 3]]| v.iter().map(|x| glam::Vec3::from(*x).as_dvec3()).collect::<Vec<_>>();
+    (d(&p), d(&n))
+}
+
+/// Per-face mean error (mm) of `predicted` against `truth`, both model space.
+fn error(model: &MorphableModel, pred: &Coefficients, truth: &(Vec<DVec3>, Vec<DVec3>), metric: Metric) -> f64 {
+    let (p, pn) = shape(model, &pred.identity, &pred.expression);
+    let lm = model.landmarks();
+    let pairs: Vec<(usize, usize)> = lm.iter().map(|&i| (i as usize, i as usize)).collect();
+    let case = GeometryCase {
+        predicted: &p,
+        predicted_normals: &pn,
+        truth: &truth.0,
+        nose_tip: truth.0[lm[30] as usize],
+        start_pairs: &pairs,
+    };
+    geometry::geometry_error(&case, metric, ICP_ITERATIONS).expect("crop not empty").mean
+}
+
+#[derive(Default, Clone)]
+struct Row {
+    mean_face: Vec<[f64; 2]>,
+    from_truth: Vec<[f64; 2]>,
+    from_photo: Vec<[f64; 2]>,
+    /// Mean-face error on the faces the pipeline found (its fair baseline).
+    mean_face_found: Vec<[f64; 2]>,
+    /// Inner-49 NME of the detected landmarks against the truth's (visible faces).
+    landmark_nme: Vec<f64>,
+}
+
+fn main() {
+    let mut per_bucket = 50u64;
+    let mut seed = 7u64;
+    let mut settings = facerecon_fit::LandmarkFitSettings::default();
+    let mut buckets: Vec<u8> = vec![0, 1, 2, 3];
+    let mut args = std::env::args().skip(1);
+    while let Some(a) = args.next() {
+        let v = args.next().unwrap_or_else(|| panic!("{a} needs a value"));
+        match a.as_str() {
+            "--per-bucket" => per_bucket = v.parse().expect("number"),
+            "--seed" => seed = v.parse().expect("number"),
+            "--sigma" => settings.sigma_px = v.parse().expect("number"),
+            "--lambda-id" => settings.identity_weight = v.parse().expect("number"),
+            "--lambda-exp" => settings.expression_weight = v.parse().expect("number"),
+            "--buckets" => buckets = v.split(',').map(|b| b.parse().expect("bucket 0-3")).collect(),
+            _ => panic!("unknown argument {a}"),
+        }
+    }
+    let model = facerecon_model::ict::load_default().expect("default model");
+    let front = FrontEnd::load_standard(facerecon_vision::landmarks::DEFAULT_MODEL_PATH.as_ref()).expect("front end");
+    let mut pipeline = Pipeline::new(model.clone(), front).expect("pipeline");
+    pipeline.set_fit_settings(settings);
+    let start = std::time::Instant::now();
+    println!(
+        "synthetic geometry error, {per_bucket} faces per bucket, seed {seed}, yaw ≤ 60°, ICP {ICP_ITERATIONS} iterations; {settings:?}"
+    );
+    println!(
+        "bucket | faces | found | detected landmarks' inner-49 NME vs truth, mean (median) | mean face p2plane (p2point) | fit from exact landmarks | mean face, found faces | fit from the photo (detect + landmarks)"
+    );
+    for &bucket in &buckets {
+        let config = SynthConfig { buckets: vec![bucket], yaw_max_deg: 60.0, ..SynthConfig::default() };
+        let generator = Generator::new(&model, config).expect("generator");
+        let rows: Vec<Row> = (0..per_bucket)
+            .into_par_iter()
+            .map(|i| {
+                let s = generator.sample(seed * 100 + bucket as u64, i).expect("sample");
+                let c = &s.truth.coefficients;
+                let truth = shape(&model, &c.identity, &c.expression);
+                let both = |pred: &Coefficients| {
+                    [
+                        error(&model, pred, &truth, Metric::PointToPlane),
+                        error(&model, pred, &truth, Metric::PointToPoint),
+                    ]
+                };
+                let mut neutral = c.clone();
+                neutral.identity.iter_mut().for_each(|x| *x = 0.0);
+                neutral.expression.iter_mut().for_each(|x| *x = 0.0);
+                let mut row = Row { mean_face: vec![both(&neutral)], ..Default::default() };
+                let exact: Vec<[f32; 2]> = s.truth.landmarks.iter().map(|l| l.xy).collect();
+                let opts = Options { faces: FaceSource::Landmarks(vec![exact.clone()]), ..Default::default() };
+                if let Ok(r) = pipeline.reconstruct_image(s.image.clone(), &opts)
+                    && let Some(Ok(f)) = r.faces.first().map(|f| &f.fit)
+                {
+                    row.from_truth.push(both(&f.landmark_fit.coefficients));
+                }
+                let tbox = FaceBox::of_points(exact.iter().copied()).expect("box");
+                if let Ok(r) = pipeline.reconstruct_image(s.image, &Options::default()) {
+                    let best = r
+                        .faces
+                        .iter()
+                        .filter(|f| f.face.landmark_box.iou(&tbox) > 0.3)
+                        .max_by(|a, b| a.face.landmark_box.iou(&tbox).total_cmp(&b.face.landmark_box.iou(&tbox)));
+                    if let Some(f) = best
+                        && let Some(e) = facerecon_eval::landmarks::nme49(&f.face.landmarks.points, &exact)
+                    {
+                        row.landmark_nme.push(e);
+                    }
+                    if let Some(Ok(f)) = best.map(|f| &f.fit) {
+                        row.from_photo.push(both(&f.landmark_fit.coefficients));
+                        row.mean_face_found.push(row.mean_face[0]);
+                    }
+                }
+                row
+            })
+            .collect();
+        let all = |f: fn(&Row) -> &Vec<[f64; 2]>| rows.iter().flat_map(|r| f(r).iter().copied()).collect::<Vec<_>>();
+        let fmt = |v: Vec<[f64; 2]>| {
+            let a = ErrorStats::of(v.iter().map(|x| x[0]).collect());
+            let b = ErrorStats::of(v.iter().map(|x| x[1]).collect());
+            match (a, b) {
+                (Some(a), Some(b)) => format!("{:.2} / {:.2} mm ({:.2} / {:.2})", a.mean, a.median, b.mean, b.median),
+                _ => "—".into(),
+            }
+        };
+        let found = all(|r| &r.from_photo).len();
+        let lm: Vec<f64> = rows.iter().flat_map(|r| r.landmark_nme.iter().copied()).collect();
+        let lm_nme =
+            ErrorStats::of(lm).map_or("—".into(), |e| format!("{:.1} % ({:.1} %)", 100.0 * e.mean, 100.0 * e.median));
+        println!(
+            "{bucket} | {} | {found} | {lm_nme} | {} | {} | {} | {}",
+            rows.len(),
+            fmt(all(|r| &r.mean_face)),
+            fmt(all(|r| &r.from_truth)),
+            fmt(all(|r| &r.mean_face_found)),
+            fmt(all(|r| &r.from_photo)),
+        );
+    }
+    println!(
+        "(each cell: mean / median over faces of the per-face mean distance; {:.0} s)",
+        start.elapsed().as_secs_f64()
+    );
+}
