@@ -51,9 +51,9 @@ pub struct LandmarkFitSettings {
 impl Default for LandmarkFitSettings {
     fn default() -> Self {
         LandmarkFitSettings {
-            sigma_px: 2.0,
+            sigma_px: 4.0,
             identity_weight: 1.0,
-            expression_weight: 4.0,
+            expression_weight: 20.0,
             contour_weight: 0.5,
             iterations: 5,
             pose_iterations: 3,
