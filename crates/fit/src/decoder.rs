@@ -12,11 +12,14 @@
 //! * [`shading`] — Lambertian SH colour `A ⊙ (Wᵀ φ(n))` (Eq. 3.1).
 //! * [`interpolate`] — attributes at pixels from a visibility buffer (triangle id and
 //!   barycentrics, not differentiated): the VJP with respect to the vertex attributes.
+//! * [`barycentric`] — a pixel's perspective-correct barycentrics as a function of its
+//!   triangle's corners (homogeneous rasterisation), and their VJP: how the photometric
+//!   loss reaches vertex positions inside triangles.
 //!
-//! Still to come: the barycentrics' derivative with respect to vertex positions and the
-//! analytic antialiasing at silhouette edges (the gradients of the photometric term at
-//! occlusion boundaries).
+//! Still to come: the analytic antialiasing at silhouette edges (the gradients of the
+//! photometric term at occlusion boundaries).
 
+pub mod barycentric;
 pub mod interpolate;
 pub mod linear;
 pub mod normals;

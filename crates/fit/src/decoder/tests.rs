@@ -291,3 +291,53 @@ fn chained_decoder_vjp() {
         close("chain: rotation", gp.rotation[k], (loss(&ws, q + e) - loss(&ws, q - e)) / 2e-6);
     }
 }
+
+#[test]
+fn barycentric_vjp_and_agreement_with_the_rasteriser() {
+    let cam = facerecon_model::scene::Camera::default();
+    let mut rng = Lcg(8);
+    // A triangle 450 mm in front of the camera, filling part of a 64² image.
+    let p = [DVec3::new(-40.0, -30.0, -450.0), DVec3::new(45.0, -20.0, -470.0), DVec3::new(0.0, 50.0, -430.0)];
+    let (w, h) = (64u32, 64u32);
+    let pf: Vec<[f32; 3]> = p.iter().map(|x| x.as_vec3().to_array()).collect();
+    let tris = [[0u32, 1, 2]];
+    let colors = [[1.0f32; 3]; 3];
+    let job = facerecon_raster::RenderJob {
+        positions: &pf,
+        triangles: &tris,
+        colors: &colors,
+        normals: &colors,
+        camera: cam,
+        width: w,
+        height: h,
+    };
+    let vb = facerecon_raster::cpu::rasterize(&job).unwrap();
+    let mut checked = 0;
+    for y in 0..h {
+        for x in 0..w {
+            let i = vb.index(x, y);
+            if !vb.covered(i) {
+                continue;
+            }
+            let s = barycentric::pixel_ray(x as f64, y as f64, w, h);
+            let b = barycentric::forward(&cam, s, p).unwrap();
+            // The rasteriser's barycentrics (an independent implementation, in f32).
+            assert!((b[0] - vb.bary[i][0] as f64).abs() < 1e-4 && (b[1] - vb.bary[i][1] as f64).abs() < 1e-4);
+            if checked % 37 == 0 {
+                let g = [rng.u(), rng.u(), rng.u()];
+                let grad = barycentric::vjp(&cam, s, p, g);
+                let d = [rng.v3(), rng.v3(), rng.v3()];
+                let hh = 1e-4;
+                let f = |t: f64| {
+                    let q = [p[0] + d[0] * t, p[1] + d[1] * t, p[2] + d[2] * t];
+                    let b = barycentric::forward(&cam, s, q).unwrap();
+                    g[0] * b[0] + g[1] * b[1] + g[2] * b[2]
+                };
+                let analytic: f64 = (0..3).map(|k| grad[k].dot(d[k])).sum();
+                close("barycentrics", analytic, (f(hh) - f(-hh)) / (2.0 * hh));
+            }
+            checked += 1;
+        }
+    }
+    assert!(checked > 150, "{checked} covered pixels");
+}
