@@ -1,7 +1,8 @@
 //! `facerecon fit IMAGE… -o DIR [--refine landmarks] [--json] [--pts]`: 3D faces from
 //! photos, in-process. Per face `K` (1-based, largest first) of `<stem>`, in `DIR`:
 //! `<stem>-face<K>.glb`, `.ply`, `.obj` (+ `.mtl`), `.json` (coefficients, landmarks,
-//! residuals), and per photo `<stem>-overlay.png`. `--json` prints one line per photo.
+//! residuals), and per photo `<stem>-overlay.png` and `<stem>-sidebyside.png` (photo |
+//! reconstruction | shape | albedo | shading, a row per face). `--json` prints one line per photo.
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -22,7 +23,9 @@ pub struct FitArgs {
     #[arg(short, long)]
     out: PathBuf,
     /// How far to reconstruct: `landmarks` (pose, identity and expression from the 68
-    /// landmarks). The photometric levels are not built yet.
+    /// landmarks, milliseconds) or `coarse` (then every coefficient, albedo and light
+    /// included, by the photometric fit: about a second per face). `full` (displacement
+    /// maps) is not built yet.
     #[arg(long, value_enum, default_value = "landmarks")]
     refine: RefineArg,
     /// One JSON object per photo on stdout (one per line).
@@ -48,6 +51,7 @@ pub struct FitArgs {
 #[derive(Clone, Copy, clap::ValueEnum)]
 enum RefineArg {
     Landmarks,
+    Coarse,
 }
 
 #[derive(serde::Serialize)]
@@ -80,7 +84,6 @@ pub fn run(args: FitArgs) -> anyhow::Result<ExitCode> {
     let front = FrontEnd::load_standard(&args.landmark_model)?;
     let pipeline = Pipeline::new(model, front)?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    let RefineArg::Landmarks = args.refine;
     let bar = (args.images.len() > 1).then(|| {
         indicatif::ProgressBar::new(args.images.len() as u64).with_style(
             indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} photos, {per_sec}, eta {eta}")
@@ -121,7 +124,11 @@ fn one(pipeline: &Pipeline, args: &FitArgs, path: &Path) -> anyhow::Result<()> {
     } else {
         FaceSource::Detect
     };
-    let options = Options { refine: Refine::Landmarks, faces, max_faces: args.max_faces };
+    let refine = match args.refine {
+        RefineArg::Landmarks => Refine::Landmarks,
+        RefineArg::Coarse => Refine::Coarse,
+    };
+    let options = Options { refine, faces, max_faces: args.max_faces };
     let recon = pipeline.reconstruct(&bytes, &options)?;
     let model = pipeline.model();
     let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "image".into());
@@ -145,6 +152,10 @@ fn one(pipeline: &Pipeline, args: &FitArgs, path: &Path) -> anyhow::Result<()> {
     let overlay = outputs::overlay(model, &recon, 0.85)?;
     let overlay_path = args.out.join(format!("{stem}-overlay.png"));
     overlay.save(&overlay_path).with_context(|| format!("writing {}", overlay_path.display()))?;
+    if let Some(sbs) = outputs::side_by_side(model, &recon)? {
+        let p = args.out.join(format!("{stem}-sidebyside.png"));
+        sbs.save(&p).with_context(|| format!("writing {}", p.display()))?;
+    }
     let name = path.display().to_string();
     if args.json {
         let obj =

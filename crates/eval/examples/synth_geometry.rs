@@ -8,13 +8,15 @@
 //! on the same faces: a fit means something only where it beats that.
 //!
 //!     cargo run --release -p facerecon-eval --example synth_geometry -- [--per-bucket N] [--seed S] \
-//!         [--buckets 0,1,2,3] [--sigma S] [--lambda-id L] [--lambda-exp L]
+//!         [--buckets 0,1,2,3] [--sigma S] [--lambda-id L] [--lambda-exp L] [--coarse [--iterations N]]
+//!
+//! `--coarse` adds the photometric fit started from the exact landmarks' landmark fit.
 
 use facerecon_eval::align::Metric;
 use facerecon_eval::geometry::{self, ErrorStats, GeometryCase};
 use facerecon_model::scene::vertex_normals;
 use facerecon_model::{Coefficients, Extent, MorphableModel};
-use facerecon_recon::{FaceSource, Options, Pipeline};
+use facerecon_recon::{FaceSource, Options, Pipeline, Refine};
 use facerecon_synth::{Generator, SynthConfig};
 use facerecon_vision::face::FaceBox;
 use facerecon_vision::pipeline::FrontEnd;
@@ -52,6 +54,10 @@ struct Row {
     from_photo: Vec<[f64; 2]>,
     /// Mean-face error on the faces the pipeline found (its fair baseline).
     mean_face_found: Vec<[f64; 2]>,
+    /// Coarse (photometric) fit from the exact landmarks' landmark fit: error, seconds,
+    /// photometric L1 before / after.
+    coarse: Vec<[f64; 2]>,
+    coarse_info: Vec<[f64; 3]>,
     /// Inner-49 NME of the detected landmarks against the truth's (visible faces).
     landmark_nme: Vec<f64>,
 }
@@ -61,8 +67,14 @@ fn main() {
     let mut seed = 7u64;
     let mut settings = facerecon_fit::LandmarkFitSettings::default();
     let mut buckets: Vec<u8> = vec![0, 1, 2, 3];
+    let mut coarse = false;
+    let mut iterations: Option<usize> = None;
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
+        if a == "--coarse" {
+            coarse = true;
+            continue;
+        }
         let v = args.next().unwrap_or_else(|| panic!("{a} needs a value"));
         match a.as_str() {
             "--per-bucket" => per_bucket = v.parse().expect("number"),
@@ -70,6 +82,7 @@ fn main() {
             "--sigma" => settings.sigma_px = v.parse().expect("number"),
             "--lambda-id" => settings.identity_weight = v.parse().expect("number"),
             "--lambda-exp" => settings.expression_weight = v.parse().expect("number"),
+            "--iterations" => iterations = Some(v.parse().expect("number")),
             "--buckets" => buckets = v.split(',').map(|b| b.parse().expect("bucket 0-3")).collect(),
             _ => panic!("unknown argument {a}"),
         }
@@ -78,6 +91,9 @@ fn main() {
     let front = FrontEnd::load_standard(facerecon_vision::landmarks::DEFAULT_MODEL_PATH.as_ref()).expect("front end");
     let mut pipeline = Pipeline::new(model.clone(), front).expect("pipeline");
     pipeline.set_fit_settings(settings);
+    if let Some(n) = iterations {
+        pipeline.photometric.iterations = n;
+    }
     let start = std::time::Instant::now();
     println!(
         "synthetic geometry error, {per_bucket} faces per bucket, seed {seed}, yaw ≤ 60°, ICP {ICP_ITERATIONS} iterations; {settings:?}"
@@ -105,11 +121,17 @@ fn main() {
                 neutral.expression.iter_mut().for_each(|x| *x = 0.0);
                 let mut row = Row { mean_face: vec![both(&neutral)], ..Default::default() };
                 let exact: Vec<[f32; 2]> = s.truth.landmarks.iter().map(|l| l.xy).collect();
-                let opts = Options { faces: FaceSource::Landmarks(vec![exact.clone()]), ..Default::default() };
+                let refine = if coarse { Refine::Coarse } else { Refine::Landmarks };
+                let opts = Options { faces: FaceSource::Landmarks(vec![exact.clone()]), refine, ..Default::default() };
+                let t0 = std::time::Instant::now();
                 if let Ok(r) = pipeline.reconstruct_image(s.image.clone(), &opts)
                     && let Some(Ok(f)) = r.faces.first().map(|f| &f.fit)
                 {
                     row.from_truth.push(both(&f.landmark_fit.coefficients));
+                    if let Some(p) = &f.photometric {
+                        row.coarse.push(both(&f.coefficients));
+                        row.coarse_info.push([t0.elapsed().as_secs_f64(), p.loss_start, p.loss_end]);
+                    }
                 }
                 let tbox = FaceBox::of_points(exact.iter().copied()).expect("box");
                 if let Ok(r) = pipeline.reconstruct_image(s.image, &Options::default()) {
@@ -141,6 +163,18 @@ fn main() {
             }
         };
         let found = all(|r| &r.from_photo).len();
+        if coarse {
+            let info: Vec<[f64; 3]> = rows.iter().flat_map(|r| r.coarse_info.iter().copied()).collect();
+            let n = info.len().max(1) as f64;
+            println!(
+                "  bucket {bucket}: coarse fit from the exact landmarks' fit: {} — {:.2} s per face, loss {:.2} → {:.2} (means of {} faces)",
+                fmt(all(|r| &r.coarse)),
+                info.iter().map(|x| x[0]).sum::<f64>() / n,
+                info.iter().map(|x| x[1]).sum::<f64>() / n,
+                info.iter().map(|x| x[2]).sum::<f64>() / n,
+                info.len()
+            );
+        }
         let lm: Vec<f64> = rows.iter().flat_map(|r| r.landmark_nme.iter().copied()).collect();
         let lm_nme =
             ErrorStats::of(lm).map_or("—".into(), |e| format!("{:.1} % ({:.1} %)", 100.0 * e.mean, 100.0 * e.median));

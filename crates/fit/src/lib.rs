@@ -19,6 +19,7 @@ pub mod contour;
 pub mod decoder;
 pub mod error;
 pub mod landmark_fit;
+pub mod photometric;
 pub mod subset;
 
 pub use error::FitError;

@@ -7,15 +7,17 @@
 //! landmark fit in it ([`facerecon_fit::LandmarkFitter`]) → results mapped back to image
 //! pixels. Meshes and pictures are made on demand from a result ([`outputs`]).
 //!
-//! Refinement levels: [`Refine::Landmarks`] is the one built; the photometric fit and the
-//! displacement stage come with the fitting work still open.
+//! Refinement levels: [`Refine::Landmarks`] (milliseconds) and [`Refine::Coarse`] (the
+//! photometric fit on the face's crop, about a second); the displacement stage comes with
+//! the fitting work still open.
 
 pub mod outputs;
 
 use std::sync::Arc;
 
+use facerecon_fit::photometric::{self, PhotometricSettings};
 use facerecon_fit::{FitError, LandmarkFit, LandmarkFitter};
-use facerecon_model::{ErrorKind, MorphableModel};
+use facerecon_model::{Coefficients, ErrorKind, Extent, MorphableModel};
 use facerecon_vision::crop::{self, Bucket, CROP_SIZE, CropTransform};
 use facerecon_vision::decode::{self, DecodeLimits};
 use facerecon_vision::face::FaceBox;
@@ -30,6 +32,8 @@ pub enum Refine {
     /// Pose, identity and expression from the 68 landmarks (milliseconds per face).
     #[default]
     Landmarks,
+    /// Then all coefficients (albedo and light too) by the photometric fit on the crop.
+    Coarse,
 }
 
 /// Where the faces come from.
@@ -99,12 +103,30 @@ pub struct FaceRecon {
 /// A fitted face.
 #[derive(Clone, Debug)]
 pub struct FaceFit {
-    /// Coefficients in the crop camera's frame (DESIGN §4's camera on the 224² crop).
+    /// The level reached.
+    pub refine: Refine,
+    /// The final coefficients, in the crop camera's frame (DESIGN §4's camera on the 224²
+    /// crop).
+    pub coefficients: Coefficients,
+    /// The landmark fit (the start of the photometric fit).
     pub landmark_fit: LandmarkFit,
+    /// Iterations, first and last loss, and the final mean absolute colour difference of
+    /// the photometric fit (at [`Refine::Coarse`]).
+    pub photometric: Option<PhotometricSummary>,
     /// The fitted model's 68 landmark vertices projected into the image, pixels.
     pub fitted_landmarks: Vec<[f32; 2]>,
     /// Root mean square landmark residual, image pixels.
     pub landmark_rms_px: f32,
+}
+
+/// What the photometric fit did.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PhotometricSummary {
+    pub iterations: usize,
+    pub loss_start: f64,
+    pub loss_end: f64,
+    /// Mean absolute colour difference over the face's pixels, 0–1 scale.
+    pub color_l1: f64,
 }
 
 /// Why one face of a photo was not fitted.
@@ -130,12 +152,19 @@ pub struct Pipeline {
     front: FrontEnd,
     fitter: LandmarkFitter,
     pub limits: DecodeLimits,
+    pub photometric: PhotometricSettings,
 }
 
 impl Pipeline {
     pub fn new(model: Arc<MorphableModel>, front: FrontEnd) -> Result<Self, FitError> {
         let fitter = LandmarkFitter::new(&model)?;
-        Ok(Pipeline { model, front: front.with_crops(false), fitter, limits: DecodeLimits::default() })
+        Ok(Pipeline {
+            model,
+            front: front.with_crops(false),
+            fitter,
+            limits: DecodeLimits::default(),
+            photometric: PhotometricSettings::default(),
+        })
     }
 
     pub fn model(&self) -> &Arc<MorphableModel> {
@@ -177,29 +206,84 @@ impl Pipeline {
                 sets.iter().map(|p| self.front.face_from_landmarks(&image, p)).collect::<Result<_, _>>()?
             }
         };
-        let faces = faces.into_par_iter().map(|face| self.fit_face(face)).collect();
+        let faces = faces.into_par_iter().map(|face| self.fit_face(&image, face, options.refine)).collect();
         Ok(Reconstruction { image, faces })
     }
 
-    /// The landmark fit of one face in its crop frame.
-    pub fn fit_face(&self, face: Face) -> FaceRecon {
+    /// The fit of one face in its crop frame, to the level asked.
+    pub fn fit_face(&self, image: &RgbImage, face: Face, refine: Refine) -> FaceRecon {
         let (left, top, side) = crop::crop_square(&face.landmark_box);
         let crop = CropTransform::from_square(left, top, side.max(1e-3), CROP_SIZE);
         let fit = if face.bucket == Bucket::TooSmall {
             Err(FaceError::TooSmall { side })
         } else {
-            let pts: Vec<[f32; 2]> = face.landmarks.points.iter().map(|p| crop.to_crop(*p)).collect();
-            match self.fitter.fit(&pts, Some(&face.landmarks.confidence)) {
-                Ok(landmark_fit) => {
-                    let fitted_landmarks: Vec<[f32; 2]> =
-                        landmark_fit.fitted.iter().map(|q| crop.to_image(*q)).collect();
-                    let landmark_rms_px = landmark_fit.rms_px / crop.scale;
-                    Ok(FaceFit { landmark_fit, fitted_landmarks, landmark_rms_px })
-                }
-                Err(e) => Err(FaceError::Fit(e.to_string())),
-            }
+            self.fit_in_crop(image, &face, &crop, refine)
         };
         FaceRecon { face, crop, fit }
+    }
+
+    fn fit_in_crop(
+        &self,
+        image: &RgbImage,
+        face: &Face,
+        crop: &CropTransform,
+        refine: Refine,
+    ) -> Result<FaceFit, FaceError> {
+        let pts: Vec<[f32; 2]> = face.landmarks.points.iter().map(|p| crop.to_crop(*p)).collect();
+        let landmark_fit =
+            self.fitter.fit(&pts, Some(&face.landmarks.confidence)).map_err(|e| FaceError::Fit(e.to_string()))?;
+        let (coefficients, photometric) = match refine {
+            Refine::Landmarks => (landmark_fit.coefficients.clone(), None),
+            Refine::Coarse => {
+                let crop_image = crop::crop_face(image, &face.landmark_box).image;
+                let p = photometric::fit(
+                    &self.model,
+                    &crop_image,
+                    &pts,
+                    &landmark_fit.vertices,
+                    &landmark_fit.coefficients,
+                    &self.photometric,
+                )
+                .map_err(|e| FaceError::Fit(e.to_string()))?;
+                let summary = PhotometricSummary {
+                    iterations: p.iterations,
+                    loss_start: p.losses.first().copied().unwrap_or(f64::NAN),
+                    loss_end: p.losses.last().copied().unwrap_or(f64::NAN),
+                    color_l1: p.photometric_l1,
+                };
+                (p.coefficients, Some(summary))
+            }
+        };
+        let fitted_landmarks = self
+            .project_vertices(&coefficients, &landmark_fit.vertices, crop)
+            .map_err(|e| FaceError::Fit(e.to_string()))?;
+        let sq: f32 = fitted_landmarks
+            .iter()
+            .zip(&face.landmarks.points)
+            .map(|(a, b)| (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2))
+            .sum();
+        let landmark_rms_px = (sq / fitted_landmarks.len().max(1) as f32).sqrt();
+        Ok(FaceFit { refine, coefficients, landmark_fit, photometric, fitted_landmarks, landmark_rms_px })
+    }
+
+    /// Model vertices under `c` projected into the image through the crop camera.
+    fn project_vertices(
+        &self,
+        c: &Coefficients,
+        vertices: &[u32],
+        crop: &CropTransform,
+    ) -> Result<Vec<[f32; 2]>, facerecon_model::ModelError> {
+        let shape = self.model.shape(&c.identity, &c.expression, Extent::Face)?;
+        let pose = facerecon_model::scene::Pose::from_coefficients(c);
+        let cam = self.fitter.camera();
+        Ok(vertices
+            .iter()
+            .map(|&v| {
+                let p = pose.apply(&[shape[v as usize]])[0];
+                let q = cam.project(glam::Vec3::from(p).as_dvec3()).unwrap_or([f64::NAN; 2]);
+                crop.to_image([q[0] as f32, q[1] as f32])
+            })
+            .collect())
     }
 }
 

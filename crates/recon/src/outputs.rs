@@ -45,6 +45,8 @@ pub struct FaceRecord {
     pub crop: CropTransform,
     pub crop_size: u32,
     pub refine: crate::Refine,
+    /// What the photometric fit did (`null` at the landmark level).
+    pub photometric: Option<crate::PhotometricSummary>,
     pub residuals: Residuals,
 }
 
@@ -66,7 +68,7 @@ pub struct Residuals {
 /// The record of a fitted face (`None` when the face was not fitted).
 pub fn face_record(model: &MorphableModel, face: &FaceRecon) -> Option<FaceRecord> {
     let fit = face.fit.as_ref().ok()?;
-    let c = &fit.landmark_fit.coefficients;
+    let c = &fit.coefficients;
     let b = face.face.detection.face_box;
     let lb = face.face.landmark_box;
     let norm = (lb.width() * lb.height()).sqrt().max(1e-6);
@@ -89,7 +91,8 @@ pub fn face_record(model: &MorphableModel, face: &FaceRecon) -> Option<FaceRecor
         camera: RecordCamera { fov_y_deg: cam.fov_y.to_degrees(), near_mm: cam.near, far_mm: cam.far },
         crop: face.crop,
         crop_size: CROP_SIZE,
-        refine: crate::Refine::Landmarks,
+        refine: fit.refine,
+        photometric: fit.photometric,
         residuals: Residuals {
             landmark_rms_px: fit.landmark_rms_px,
             landmark_rms_relative: fit.landmark_rms_px / norm,
@@ -110,7 +113,7 @@ pub fn overlay(model: &MorphableModel, recon: &Reconstruction, opacity: f32) -> 
     let opacity = opacity.clamp(0.0, 1.0);
     for face in &recon.faces {
         let Ok(fit) = &face.fit else { continue };
-        let Ok(mesh) = fitted_mesh(model, &fit.landmark_fit.coefficients) else { continue };
+        let Ok(mesh) = fitted_mesh(model, &fit.coefficients) else { continue };
         let normals = mesh.normals.clone().unwrap_or_default();
         let colors = shape_shading(&normals);
         // The crop frame widened by PAD on every side (the face area reaches beyond the
@@ -185,4 +188,61 @@ fn blend(
             }
         }
     }
+}
+
+/// The thesis' Figure 3.6 layout, one row per fitted face, each tile the face's 224² crop:
+/// photo | reconstruction over the photo (albedo × shading) | shape (grey) | albedo |
+/// shading (the light on a mid-grey albedo). Empty (`None`) when no face was fitted.
+pub fn side_by_side(model: &MorphableModel, recon: &Reconstruction) -> Result<Option<RgbImage>, RenderError> {
+    let fitted: Vec<&FaceRecon> = recon.faces.iter().filter(|f| f.fit.is_ok()).collect();
+    if fitted.is_empty() {
+        return Ok(None);
+    }
+    let s = CROP_SIZE;
+    let mut out = RgbImage::from_pixel(5 * s + 16, fitted.len() as u32 * (s + 4), image::Rgb([255, 255, 255]));
+    for (row, face) in fitted.iter().enumerate() {
+        let Ok(fit) = &face.fit else { continue };
+        let photo = facerecon_vision::crop::crop_face(&recon.image, &face.face.landmark_box).image;
+        let mut lit = LitFace::default();
+        if lit.update(model, &fit.coefficients).is_err() {
+            continue;
+        }
+        // Shading on a mid-grey albedo, so that shading above 1 still shows.
+        let white = vec![[0.5f32; 3]; lit.positions.len()];
+        let shading = facerecon_model::scene::shade(&white, &lit.normals, &fit.coefficients.light);
+        let grey = shape_shading(&lit.normals);
+        let tris = model.extent_triangles(Extent::Face);
+        let render = |colors: &[[f32; 3]]| {
+            cpu::render(&RenderJob {
+                positions: &lit.positions,
+                triangles: tris,
+                colors,
+                normals: &lit.normals,
+                camera: Camera::default(),
+                width: s,
+                height: s,
+            })
+        };
+        let tiles = [render(&lit.colors)?, render(&grey)?, render(&lit.albedo)?, render(&shading)?];
+        let y0 = row as u32 * (s + 4);
+        image::imageops::replace(&mut out, &photo, 0, y0 as i64);
+        for (k, frame) in tiles.iter().enumerate() {
+            let x0 = (k as u32 + 1) * (s + 4);
+            for y in 0..s {
+                for x in 0..s {
+                    let i = frame.visibility.index(x, y);
+                    let px = if frame.visibility.covered(i) {
+                        let c = frame.color[i];
+                        image::Rgb([c[0], c[1], c[2]])
+                    } else if k == 0 {
+                        *photo.get_pixel(x, y)
+                    } else {
+                        image::Rgb([255, 255, 255])
+                    };
+                    out.put_pixel(x0 + x, y0 + y, px);
+                }
+            }
+        }
+    }
+    Ok(Some(out))
 }

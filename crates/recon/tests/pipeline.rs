@@ -6,7 +6,7 @@ use std::sync::{Arc, OnceLock};
 use facerecon_model::ErrorKind;
 use facerecon_model::mesh::{glb, obj, ply};
 use facerecon_recon::outputs::{self, FaceRecord};
-use facerecon_recon::{FaceError, FaceSource, Options, Pipeline, ReconError};
+use facerecon_recon::{FaceError, FaceSource, Options, Pipeline, ReconError, Refine};
 use facerecon_vision::face::FaceBox;
 use facerecon_vision::pipeline::FrontEnd;
 
@@ -85,6 +85,23 @@ fn annotated_and_detected_faces_are_fitted_and_exported() {
         assert_eq!(ov.dimensions(), r.image.dimensions());
         assert_ne!(ov, r.image, "{name}: the overlay draws the face");
     }
+}
+
+#[test]
+fn the_coarse_fit_lowers_its_loss_and_keeps_the_landmarks() {
+    let p = pipeline();
+    let (bytes, truth) = photo("lfpw/testset/image_0003.png");
+    let o = Options { faces: FaceSource::Landmarks(vec![truth.clone()]), refine: Refine::Coarse, ..Default::default() };
+    let r = p.reconstruct(&bytes, &o).unwrap();
+    let fit = r.faces[0].fit.as_ref().unwrap();
+    let ph = fit.photometric.expect("photometric summary");
+    eprintln!("coarse: {ph:?}, landmark rms {:.2} px", fit.landmark_rms_px);
+    assert!(ph.loss_end < 0.8 * ph.loss_start, "{ph:?}");
+    assert!(ph.color_l1 < 0.12, "{ph:?}");
+    assert!(nme(&fit.fitted_landmarks[17..], &truth[17..]) < 0.04);
+    assert_ne!(fit.coefficients.albedo, fit.landmark_fit.coefficients.albedo);
+    let sbs = outputs::side_by_side(p.model(), &r).unwrap().unwrap();
+    assert_eq!(sbs.dimensions(), (5 * 224 + 16, 228));
 }
 
 #[test]

@@ -10,10 +10,23 @@
 use facerecon_model::scene::Camera;
 use glam::DVec3;
 
-/// The clip-space `(x, y, w)` of a camera-space point.
-fn clip(camera: &Camera, p: DVec3) -> DVec3 {
-    let f = camera.focal() as f64;
-    DVec3::new(f / camera.aspect as f64 * p.x, f * p.y, -p.z)
+/// The camera's clip-space scale factors (computed once: `focal` is a tangent).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Clip {
+    fx: f64,
+    fy: f64,
+}
+
+impl Clip {
+    pub fn new(camera: &Camera) -> Self {
+        let f = camera.focal() as f64;
+        Clip { fx: f / camera.aspect as f64, fy: f }
+    }
+
+    /// The clip-space `(x, y, w)` of a camera-space point.
+    fn of(&self, p: DVec3) -> DVec3 {
+        DVec3::new(self.fx * p.x, self.fy * p.y, -p.z)
+    }
 }
 
 /// The NDC ray direction of pixel `(x, y)` of a `width × height` image.
@@ -24,16 +37,16 @@ pub fn pixel_ray(x: f64, y: f64, width: u32, height: u32) -> DVec3 {
 
 /// Barycentrics of the ray `s` in the triangle with camera-space corners `p`; `None` when
 /// the ray is parallel to the triangle's plane.
-pub fn forward(camera: &Camera, s: DVec3, p: [DVec3; 3]) -> Option<[f64; 3]> {
-    let c = p.map(|x| clip(camera, x));
+pub fn forward(clip: &Clip, s: DVec3, p: [DVec3; 3]) -> Option<[f64; 3]> {
+    let c = p.map(|x| clip.of(x));
     let e = [s.dot(c[1].cross(c[2])), s.dot(c[2].cross(c[0])), s.dot(c[0].cross(c[1]))];
     let sum = e[0] + e[1] + e[2];
     (sum.abs() > 1e-300).then(|| e.map(|x| x / sum))
 }
 
 /// `∂⟨g, b⟩/∂p_i` for the three corners.
-pub fn vjp(camera: &Camera, s: DVec3, p: [DVec3; 3], g: [f64; 3]) -> [DVec3; 3] {
-    let c = p.map(|x| clip(camera, x));
+pub fn vjp(clip: &Clip, s: DVec3, p: [DVec3; 3], g: [f64; 3]) -> [DVec3; 3] {
+    let c = p.map(|x| clip.of(x));
     let e = [s.dot(c[1].cross(c[2])), s.dot(c[2].cross(c[0])), s.dot(c[0].cross(c[1]))];
     let sum = e[0] + e[1] + e[2];
     if sum.abs() <= 1e-300 {
@@ -49,7 +62,5 @@ pub fn vjp(camera: &Camera, s: DVec3, p: [DVec3; 3], g: [f64; 3]) -> [DVec3; 3] 
         gc[j] += c[k].cross(s) * ge[i];
         gc[k] += s.cross(c[j]) * ge[i];
     }
-    let f = camera.focal() as f64;
-    let a = camera.aspect as f64;
-    gc.map(|g| DVec3::new(f / a * g.x, f * g.y, -g.z))
+    gc.map(|g| DVec3::new(clip.fx * g.x, clip.fy * g.y, -g.z))
 }

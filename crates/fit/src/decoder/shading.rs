@@ -2,12 +2,13 @@
 
 use facerecon_model::scene::{SH_COEFFS, sh_basis_jacobian_f64};
 use glam::DVec3;
+use rayon::prelude::*;
 
 pub type Light = [[f64; 3]; SH_COEFFS];
 
 pub fn forward(albedo: &[DVec3], normals: &[DVec3], light: &Light) -> Vec<DVec3> {
     albedo
-        .iter()
+        .par_iter()
         .zip(normals)
         .map(|(a, n)| {
             let (phi, _) = sh_basis_jacobian_f64(n.to_array());

@@ -207,6 +207,16 @@ fn linear_vjp_on_the_model() {
         let n = model.extent_vertices(Extent::Face);
         let g = rng.vecs(n);
         let grad = block.vjp(&model, &g);
+        // The fast paths agree with the reference ones.
+        let fast = block.vjp_fast(&model, &g);
+        for (a, b) in grad.iter().zip(&fast) {
+            assert!((a - b).abs() <= 1e-4 * (1.0 + a.abs()), "fast VJP {b} vs {a}");
+        }
+        if block == linear::Linear::Albedo {
+            let (x, y) = (block.forward(&model, &w), block.forward_fast(&model, &w).unwrap());
+            let max = x.iter().zip(&y).map(|(a, b)| a.distance(*b)).fold(0.0, f64::max);
+            assert!(max < 1e-3, "fast albedo off by {max}");
+        }
         let f = |w: &[f64]| dot3(&g, &block.forward(&model, w));
         for idx in [0, k / 2, k - 1] {
             let h = 1e-3;
@@ -295,6 +305,7 @@ fn chained_decoder_vjp() {
 #[test]
 fn barycentric_vjp_and_agreement_with_the_rasteriser() {
     let cam = facerecon_model::scene::Camera::default();
+    let clip = barycentric::Clip::new(&cam);
     let mut rng = Lcg(8);
     // A triangle 450 mm in front of the camera, filling part of a 64² image.
     let p = [DVec3::new(-40.0, -30.0, -450.0), DVec3::new(45.0, -20.0, -470.0), DVec3::new(0.0, 50.0, -430.0)];
@@ -320,17 +331,17 @@ fn barycentric_vjp_and_agreement_with_the_rasteriser() {
                 continue;
             }
             let s = barycentric::pixel_ray(x as f64, y as f64, w, h);
-            let b = barycentric::forward(&cam, s, p).unwrap();
+            let b = barycentric::forward(&clip, s, p).unwrap();
             // The rasteriser's barycentrics (an independent implementation, in f32).
             assert!((b[0] - vb.bary[i][0] as f64).abs() < 1e-4 && (b[1] - vb.bary[i][1] as f64).abs() < 1e-4);
             if checked % 37 == 0 {
                 let g = [rng.u(), rng.u(), rng.u()];
-                let grad = barycentric::vjp(&cam, s, p, g);
+                let grad = barycentric::vjp(&clip, s, p, g);
                 let d = [rng.v3(), rng.v3(), rng.v3()];
                 let hh = 1e-4;
                 let f = |t: f64| {
                     let q = [p[0] + d[0] * t, p[1] + d[1] * t, p[2] + d[2] * t];
-                    let b = barycentric::forward(&cam, s, q).unwrap();
+                    let b = barycentric::forward(&clip, s, q).unwrap();
                     g[0] * b[0] + g[1] * b[1] + g[2] * b[2]
                 };
                 let analytic: f64 = (0..3).map(|k| grad[k].dot(d[k])).sum();
