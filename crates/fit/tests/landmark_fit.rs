@@ -105,6 +105,12 @@ fn fitter() -> (std::sync::Arc<MorphableModel>, LandmarkFitter) {
     (model, f)
 }
 
+/// Mean distance between fitted and given points over `range`, pixels.
+fn mean_error(fitted: &[[f32; 2]], given: &[[f32; 2]], range: std::ops::Range<usize>) -> f32 {
+    let n = range.len() as f32;
+    range.map(|j| ((fitted[j][0] - given[j][0]).powi(2) + (fitted[j][1] - given[j][1]).powi(2)).sqrt()).sum::<f32>() / n
+}
+
 fn angle_between(a: [f32; 3], b: [f32; 3]) -> f32 {
     let qa = glam::Quat::from_scaled_axis(Vec3::from(a));
     let qb = glam::Quat::from_scaled_axis(Vec3::from(b));
@@ -118,10 +124,7 @@ fn recovers_pose_and_landmarks_of_frontal_faces() {
         let truth = face(&model, seed, 8.0 * (seed as f32 - 3.0), 4.0);
         let pts = landmarks(&model, &truth);
         let fit = f.fit(&pts, None).unwrap();
-        let inner: f32 = (17..68)
-            .map(|j| ((fit.fitted[j][0] - pts[j][0]).powi(2) + (fit.fitted[j][1] - pts[j][1]).powi(2)).sqrt())
-            .sum::<f32>()
-            / 51.0;
+        let inner = mean_error(&fit.fitted, &pts, 17..68);
         let angle = angle_between(fit.coefficients.rotation, truth.rotation);
         eprintln!("seed {seed}: inner mean error {inner:.3} px, rms {:.3} px, rotation off by {angle:.2}°", fit.rms_px);
         assert!(inner < 0.6, "inner-point error {inner} px");
@@ -139,18 +142,11 @@ fn turned_faces_keep_inner_points_and_move_the_far_contour_inwards() {
         let truth = face(&model, seed, yaw, 0.0);
         let pts = landmarks(&model, &truth);
         let fit = f.fit(&pts, None).unwrap();
-        let inner: f32 = (17..68)
-            .map(|j| ((fit.fitted[j][0] - pts[j][0]).powi(2) + (fit.fitted[j][1] - pts[j][1]).powi(2)).sqrt())
-            .sum::<f32>()
-            / 51.0;
+        let inner = mean_error(&fit.fitted, &pts, 17..68);
         let angle = angle_between(fit.coefficients.rotation, truth.rotation);
         eprintln!("yaw {yaw}: inner mean error {inner:.3} px, rotation off by {angle:.2}°");
         let far: Vec<usize> = if yaw > 0.0 { (10..17).collect() } else { (0..7).collect() };
-        let jaw: f32 = far
-            .iter()
-            .map(|&j| ((fit.fitted[j][0] - pts[j][0]).powi(2) + (fit.fitted[j][1] - pts[j][1]).powi(2)).sqrt())
-            .sum::<f32>()
-            / far.len() as f32;
+        let jaw = mean_error(&fit.fitted, &pts, far[0]..far[far.len() - 1] + 1);
         eprintln!("yaw {yaw}: far-side jaw mean error {jaw:.3} px");
         assert!(inner < 1.0, "yaw {yaw}: inner-point error {inner} px");
         // At 60° the nose's own outline reaches the cheek's in this brute-force oracle, which

@@ -36,33 +36,11 @@ fn close(what: &str, analytic: f64, numeric: f64) {
     assert!((analytic - numeric).abs() <= 1e-5 * scale, "{what}: analytic {analytic} vs finite difference {numeric}");
 }
 
-/// A small closed mesh: a UV sphere (6 rings × 8 segments) with jittered radii, so that
-/// vertices have several incident triangles of different areas.
+/// A small closed mesh: the model crate's UV sphere (6 rings × 8 segments) with jittered
+/// radii, so that vertices have several incident triangles of different areas.
 fn mesh(rng: &mut Lcg) -> (Vec<DVec3>, Vec<[u32; 3]>) {
-    let (rings, segs) = (6u32, 8u32);
-    let mut p = vec![DVec3::new(0.0, 0.0, 1.0)];
-    for r in 1..rings {
-        let th = std::f64::consts::PI * r as f64 / rings as f64;
-        for s in 0..segs {
-            let ph = std::f64::consts::TAU * s as f64 / segs as f64;
-            p.push(DVec3::new(th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos()) * (1.0 + 0.1 * rng.u()));
-        }
-    }
-    p.push(DVec3::new(0.0, 0.0, -1.0));
-    let last = p.len() as u32 - 1;
-    let at = |r: u32, s: u32| 1 + (r - 1) * segs + s % segs;
-    let mut t = Vec::new();
-    for s in 0..segs {
-        t.push([0, at(1, s), at(1, s + 1)]);
-        t.push([last, at(rings - 1, s + 1), at(rings - 1, s)]);
-    }
-    for r in 1..rings - 1 {
-        for s in 0..segs {
-            t.push([at(r, s), at(r + 1, s), at(r + 1, s + 1)]);
-            t.push([at(r, s), at(r + 1, s + 1), at(r, s + 1)]);
-        }
-    }
-    (p, t)
+    let (p, t) = facerecon_model::mesh::uv_sphere(6, 8);
+    (p.iter().map(|x| glam::Vec3::from(*x).as_dvec3() * (1.0 + 0.1 * rng.u())).collect(), t)
 }
 
 #[test]
