@@ -5,6 +5,7 @@
 //! * [`geometry`] — the geometry error of thesis §3.5.1: ground truth cropped to 95 mm
 //!   around the nose tip, prediction aligned by similarity ICP, distances in mm.
 //! * [`landmarks`] — NME over all 68 points and over the inner 49.
+//! * [`photometric`] — MSE, PSNR and SSIM inside a mask.
 //!
 //! Plain f64 math over point slices: nothing here knows about models or files, so every
 //! metric is tested on cases computed by hand.
@@ -13,3 +14,4 @@ pub mod align;
 pub mod geometry;
 mod grid;
 pub mod landmarks;
+pub mod photometric;

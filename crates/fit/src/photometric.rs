@@ -12,7 +12,8 @@
 //! Built so far: one pyramid level; the region is the rendered part of the model's narrow
 //! face mask (no skin likelihood, no background likelihood, no silhouette term and no
 //! antialiasing gradient yet).
-//! Every run has an iteration cap and a time budget.
+//! Every run has an iteration cap, a time budget and a stopping rule (less than 0.1 % of
+//! the loss gained over 20 iterations).
 
 use std::time::{Duration, Instant};
 
@@ -216,6 +217,10 @@ pub fn fit(
             + settings.lambda_exp * ex.iter().map(|x| x * x).sum::<f64>()
             + settings.lambda_tex * wa.iter().map(|x| x * x).sum::<f64>();
         losses.push(loss);
+        // Stopping rule: less than 0.1 % gained over the last 20 iterations.
+        if losses.len() > 20 && losses[losses.len() - 21] - loss < 1e-3 * losses[losses.len() - 21].abs() {
+            break;
+        }
         // Backward.
         let gsh = shading::vjp(&albedo, &nn, &lt, &g_colors);
         let gn = normals::vjp(&y, tris, &gsh.normals);

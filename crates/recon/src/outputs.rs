@@ -190,6 +190,37 @@ fn blend(
     }
 }
 
+/// The reconstruction (fitted albedo × SH shading) of coefficients `c` rendered into the
+/// face's crop frame (`CROP_SIZE`², the fit's camera), with the mask of the pixels inside the
+/// model's narrow face region (the region the photometric fit compares).
+pub fn render_reconstruction(
+    model: &MorphableModel,
+    c: &Coefficients,
+) -> Result<(facerecon_raster::Frame, Vec<bool>), RenderError> {
+    let mut lit = LitFace::default();
+    lit.update(model, c).map_err(|e| RenderError::InvalidArgument(e.to_string()))?;
+    let tris = model.extent_triangles(Extent::Face);
+    let frame = cpu::render(&RenderJob {
+        positions: &lit.positions,
+        triangles: tris,
+        colors: &lit.colors,
+        normals: &lit.normals,
+        camera: Camera::default(),
+        width: CROP_SIZE,
+        height: CROP_SIZE,
+    })?;
+    let region = model.mask(facerecon_model::Mask::NarrowFace);
+    let mask = (0..frame.visibility.triangle.len())
+        .map(|i| {
+            frame.visibility.covered(i)
+                && tris
+                    .get(frame.visibility.triangle[i] as usize)
+                    .is_some_and(|t| t.iter().all(|&v| region.get(v as usize).is_some_and(|m| *m != 0)))
+        })
+        .collect();
+    Ok((frame, mask))
+}
+
 /// The thesis' Figure 3.6 layout, one row per fitted face, each tile the face's 224² crop:
 /// photo | reconstruction over the photo (albedo × shading) | shape (grey) | albedo |
 /// shading (the light on a mid-grey albedo). Empty (`None`) when no face was fitted.
