@@ -25,14 +25,8 @@ fn main() {
             _ => panic!("unknown argument {a}"),
         }
     }
-    let manifest = std::fs::read_to_string(photos.join("manifest.csv")).expect("manifest.csv");
-    let rows: Vec<String> = manifest
-        .lines()
-        .skip(1)
-        .filter_map(|l| l.split(',').next().map(String::from))
-        .filter(|p| subsets.is_empty() || subsets.iter().any(|s| p.starts_with(s.as_str())))
-        .take(limit)
-        .collect();
+    let mut rows: Vec<String> = facerecon_eval::faces300w::photos(&photos, &subsets).expect("manifest.csv");
+    rows.truncate(limit);
     let model = facerecon_model::ict::load_default().expect("default model");
     let front = FrontEnd::load_standard(facerecon_vision::landmarks::DEFAULT_MODEL_PATH.as_ref()).expect("front end");
     let pipeline = Pipeline::new(model.clone(), front).expect("pipeline");

@@ -6,11 +6,13 @@
 //!   around the nose tip, prediction aligned by similarity ICP, distances in mm.
 //! * [`landmarks`] — NME over all 68 points and over the inner 49.
 //! * [`photometric`] — MSE, PSNR and SSIM inside a mask.
+//! * [`faces300w`] — the photos of an evaluation run.
 //!
 //! Plain f64 math over point slices: nothing here knows about models or files, so every
 //! metric is tested on cases computed by hand.
 
 pub mod align;
+pub mod faces300w;
 pub mod geometry;
 mod grid;
 pub mod landmarks;

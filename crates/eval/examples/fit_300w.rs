@@ -6,7 +6,7 @@
 //! error / √(w·h) of the annotated box), over the inner 49 points (18–68, eos' measure) and
 //! over all 68, and the time per fit (one thread, median).
 //!
-//!     cargo run --release -p facerecon-recon --example fit_300w -- \
+//!     cargo run --release -p facerecon-eval --example fit_300w -- \
 //!         [--photos DIR] [--subset afw/ …] [--input annot|FILE.jsonl] [--sigma S] [--lambda-exp L] [--lambda-id L]
 //!
 //! `scripts/compare-eos` runs this and eos on the same inputs in one go.
@@ -42,13 +42,7 @@ fn main() {
             _ => panic!("unknown argument {a}"),
         }
     }
-    let manifest = std::fs::read_to_string(photos.join("manifest.csv")).expect("manifest.csv");
-    let rows: Vec<String> = manifest
-        .lines()
-        .skip(1)
-        .filter_map(|l| l.split(',').next().map(String::from))
-        .filter(|p| subsets.is_empty() || subsets.iter().any(|s| p.starts_with(s.as_str())))
-        .collect();
+    let rows: Vec<String> = facerecon_eval::faces300w::photos(&photos, &subsets).expect("manifest.csv");
     let detections: std::collections::HashMap<PathBuf, Vec<DetectedFace>> = if input == "annot" {
         Default::default()
     } else {
