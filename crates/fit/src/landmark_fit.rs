@@ -80,15 +80,12 @@ pub struct LandmarkFit {
 /// their basis rows. Build once per model, fit many faces (it is `Sync`).
 #[derive(Clone, Debug)]
 pub struct LandmarkFitter {
+    /// The 68 landmark vertices first (subset index = iBUG index), then the candidates.
     subset: VertexSubset,
-    /// Subset index of each landmark's fixed vertex.
-    fixed: Vec<usize>,
     /// Per moving contour point, subset indices of its candidates.
     candidates: Vec<Vec<usize>>,
     /// Model-space x of each moving point's landmark (its side of the face).
     moving_x: Vec<f32>,
-    identity: usize,
-    expression: usize,
     layout: facerecon_model::CoeffLayout,
     camera: CropCamera,
     pub settings: LandmarkFitSettings,
@@ -116,11 +113,8 @@ impl LandmarkFitter {
         let layout = model.layout();
         Ok(LandmarkFitter {
             subset: VertexSubset::new(model, indices),
-            fixed: (0..LANDMARKS).collect(),
             candidates,
             moving_x,
-            identity: layout.identity,
-            expression: layout.expression,
             layout,
             camera: CropCamera::crop(),
             settings: LandmarkFitSettings::default(),
@@ -150,9 +144,10 @@ impl LandmarkFitter {
             .collect();
         let target: Vec<[f64; 2]> = points.iter().map(|p| [p[0] as f64, p[1] as f64]).collect();
 
-        let k = self.identity + self.expression;
-        let mut w = vec![0.0f64; k];
-        let mut active = self.fixed.clone();
+        let ni = self.layout.identity;
+        let mut w = vec![0.0f64; ni + self.layout.expression];
+        // Subset index of each point's vertex: the fixed landmark until the contour moves it.
+        let mut active: Vec<usize> = (0..LANDMARKS).collect();
         let (mut rot, mut t) = self.initial_pose(&target)?;
         let mut model_pos: Vec<DVec3> = Vec::new();
         for _ in 0..s.iterations {
@@ -179,8 +174,8 @@ impl LandmarkFitter {
         }
         let rotation = DQuat::from_mat3(&rot).to_scaled_axis();
         let mut coefficients = Coefficients::neutral(self.layout, 500.0);
-        coefficients.identity = w[..self.identity].iter().map(|&x| x as f32).collect();
-        coefficients.expression = w[self.identity..].iter().map(|&x| x as f32).collect();
+        coefficients.identity = w[..ni].iter().map(|&x| x as f32).collect();
+        coefficients.expression = w[ni..].iter().map(|&x| x as f32).collect();
         coefficients.rotation = rotation.as_vec3().to_array();
         coefficients.translation = t.as_vec3().to_array();
         if !coefficients.translation.iter().chain(&coefficients.rotation).all(|x| x.is_finite()) {
@@ -210,7 +205,7 @@ impl LandmarkFitter {
     fn initial_pose(&self, target: &[[f64; 2]]) -> Result<(DMat3, DVec3), FitError> {
         let used: Vec<usize> = (7..10).chain(17..LANDMARKS).collect();
         let n = used.len() as f64;
-        let x3: Vec<DVec3> = used.iter().map(|&j| self.subset.mean(self.fixed[j])).collect();
+        let x3: Vec<DVec3> = used.iter().map(|&j| self.subset.mean(j)).collect();
         // Image points with y up, relative to the optical axis.
         let c = self.camera.c;
         let x2: Vec<[f64; 2]> = used.iter().map(|&j| [target[j][0] - c, c - target[j][1]]).collect();
@@ -338,8 +333,8 @@ impl LandmarkFitter {
         block: Block,
     ) {
         let (start, len, lambda) = match block {
-            Block::Identity => (0, self.identity, self.settings.identity_weight),
-            Block::Expression => (self.identity, self.expression, self.settings.expression_weight),
+            Block::Identity => (0, self.layout.identity, self.settings.identity_weight),
+            Block::Expression => (self.layout.identity, self.layout.expression, self.settings.expression_weight),
         };
         if len == 0 {
             return;
