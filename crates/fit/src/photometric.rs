@@ -77,7 +77,8 @@ pub struct PhotometricFit {
     pub coefficients: Coefficients,
     /// Total loss at each iteration.
     pub losses: Vec<f64>,
-    /// Mean absolute colour difference over the covered pixels at the end (0–1 scale).
+    /// Mean absolute colour difference over the region's pixels at the last iteration
+    /// evaluated (before its step), 0–1 scale.
     pub photometric_l1: f64,
     pub iterations: usize,
 }
@@ -160,10 +161,12 @@ pub fn fit(
         let nn = normals::forward(&y, tris);
         let albedo = Linear::Albedo.forward_fast(model, &wa).map_err(FitError::Evaluate)?;
         let colors = shading::forward(&albedo, &nn, &lt);
-        let yf: Vec<[f32; 3]> = y.iter().map(|p| p.as_vec3().to_array()).collect();
-        let cf: Vec<[f32; 3]> = colors.iter().map(|c| c.as_vec3().to_array()).collect();
-        let job = RenderJob { positions: &yf, triangles: tris, colors: &cf, normals: &cf, camera, width: w, height: h };
         if it % settings.raster_every.max(1) == 0 {
+            // Pass 1 reads only positions; colours and normals are placeholders of the
+            // right length.
+            let yf: Vec<[f32; 3]> = y.iter().map(|p| p.as_vec3().to_array()).collect();
+            let job =
+                RenderJob { positions: &yf, triangles: tris, colors: &yf, normals: &yf, camera, width: w, height: h };
             let vb = cpu::rasterize(&job).map_err(|e| FitError::Diverged(format!("rendering: {e}")))?;
             fp = interpolate::footprint(&vb, tris);
             // The region: pixels of triangles inside the model's narrow face mask (no
