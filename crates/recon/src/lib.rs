@@ -274,13 +274,14 @@ impl Pipeline {
         crop: &CropTransform,
     ) -> Result<Vec<[f32; 2]>, facerecon_model::ModelError> {
         let shape = self.model.shape(&c.identity, &c.expression, Extent::Face)?;
-        let pose = facerecon_model::scene::Pose::from_coefficients(c);
+        let r = facerecon_model::scene::Pose::from_coefficients(c).matrix();
+        let t = glam::Vec3::from(c.translation);
         let cam = self.fitter.camera();
         Ok(vertices
             .iter()
             .map(|&v| {
-                let p = pose.apply(&[shape[v as usize]])[0];
-                let q = cam.project(glam::Vec3::from(p).as_dvec3()).unwrap_or([f64::NAN; 2]);
+                let p = r * glam::Vec3::from(shape[v as usize]) + t;
+                let q = cam.project(p.as_dvec3()).unwrap_or([f64::NAN; 2]);
                 crop.to_image([q[0] as f32, q[1] as f32])
             })
             .collect())

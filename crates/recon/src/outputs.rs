@@ -113,9 +113,11 @@ pub fn overlay(model: &MorphableModel, recon: &Reconstruction, opacity: f32) -> 
     let opacity = opacity.clamp(0.0, 1.0);
     for face in &recon.faces {
         let Ok(fit) = &face.fit else { continue };
-        let Ok(mesh) = fitted_mesh(model, &fit.coefficients) else { continue };
-        let normals = mesh.normals.clone().unwrap_or_default();
-        let colors = shape_shading(&normals);
+        let mut lit = LitFace::default();
+        if lit.update(model, &fit.coefficients).is_err() {
+            continue;
+        }
+        let colors = shape_shading(&lit.normals);
         // The crop frame widened by PAD on every side (the face area reaches beyond the
         // crop: forehead, neck): fov grown so that tan(fov/2) scales by `PAD`, and the
         // crop's pixels sit in the middle of the rendering.
@@ -123,19 +125,30 @@ pub fn overlay(model: &MorphableModel, recon: &Reconstruction, opacity: f32) -> 
         let full = (side as f32 * PAD).round() as u32;
         let base = Camera::default();
         let camera = Camera { fov_y: 2.0 * ((0.5 * base.fov_y).tan() * full as f32 / side as f32).atan(), ..base };
-        let job = RenderJob {
-            positions: &mesh.positions,
-            triangles: model.extent_triangles(Extent::Face),
-            colors: &colors,
-            normals: &normals,
-            camera,
-            width: full,
-            height: full,
-        };
-        let frame = cpu::render(&job)?;
+        let frame = render_face(model, &lit, &colors, camera, full)?;
         blend(&mut out, &frame, &face.crop, side, full, opacity);
     }
     Ok(out)
+}
+
+/// The face area of `lit` with per-vertex `colors`, seen by `camera`, in a `size`² image:
+/// the one render call behind the overlay, the side-by-side and the quality figures.
+fn render_face(
+    model: &MorphableModel,
+    lit: &LitFace,
+    colors: &[[f32; 3]],
+    camera: Camera,
+    size: u32,
+) -> Result<facerecon_raster::Frame, RenderError> {
+    cpu::render(&RenderJob {
+        positions: &lit.positions,
+        triangles: model.extent_triangles(Extent::Face),
+        colors,
+        normals: &lit.normals,
+        camera,
+        width: size,
+        height: size,
+    })
 }
 
 /// Grey shading of camera-space normals: ambient plus a light from the upper front.
@@ -200,15 +213,7 @@ pub fn render_reconstruction(
     let mut lit = LitFace::default();
     lit.update(model, c).map_err(|e| RenderError::InvalidArgument(e.to_string()))?;
     let tris = model.extent_triangles(Extent::Face);
-    let frame = cpu::render(&RenderJob {
-        positions: &lit.positions,
-        triangles: tris,
-        colors: &lit.colors,
-        normals: &lit.normals,
-        camera: Camera::default(),
-        width: CROP_SIZE,
-        height: CROP_SIZE,
-    })?;
+    let frame = render_face(model, &lit, &lit.colors, Camera::default(), CROP_SIZE)?;
     let region = model.mask(facerecon_model::Mask::NarrowFace);
     let mask = (0..frame.visibility.triangle.len())
         .map(|i| {
@@ -242,18 +247,7 @@ pub fn side_by_side(model: &MorphableModel, recon: &Reconstruction) -> Result<Op
         let white = vec![[0.5f32; 3]; lit.positions.len()];
         let shading = facerecon_model::scene::shade(&white, &lit.normals, &fit.coefficients.light);
         let grey = shape_shading(&lit.normals);
-        let tris = model.extent_triangles(Extent::Face);
-        let render = |colors: &[[f32; 3]]| {
-            cpu::render(&RenderJob {
-                positions: &lit.positions,
-                triangles: tris,
-                colors,
-                normals: &lit.normals,
-                camera: Camera::default(),
-                width: s,
-                height: s,
-            })
-        };
+        let render = |colors: &[[f32; 3]]| render_face(model, &lit, colors, Camera::default(), s);
         let tiles = [render(&lit.colors)?, render(&grey)?, render(&lit.albedo)?, render(&shading)?];
         let y0 = row as u32 * (s + 4);
         image::imageops::replace(&mut out, &photo, 0, y0 as i64);
