@@ -6,6 +6,8 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::Context;
+
+use super::ImageJson;
 use facerecon_vision::crop::Bucket;
 use facerecon_vision::decode::DecodeLimits;
 use facerecon_vision::pipeline::{Face, FrontEnd};
@@ -26,14 +28,6 @@ pub struct DetectArgs {
     /// dlib shape predictor file.
     #[arg(long, default_value = facerecon_vision::landmarks::DEFAULT_MODEL_PATH)]
     landmark_model: PathBuf,
-}
-
-#[derive(serde::Serialize)]
-struct ImageJson<'a> {
-    image: &'a str,
-    width: u32,
-    height: u32,
-    faces: Vec<FaceJson>,
 }
 
 #[derive(serde::Serialize)]

@@ -8,6 +8,8 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::Context;
+
+use super::ImageJson;
 use facerecon_model::MorphableModel;
 use facerecon_model::mesh::{glb, obj, ply};
 use facerecon_recon::outputs::{self, FaceRecord};
@@ -52,14 +54,6 @@ pub struct FitArgs {
 enum RefineArg {
     Landmarks,
     Coarse,
-}
-
-#[derive(serde::Serialize)]
-struct ImageJson<'a> {
-    image: &'a str,
-    width: u32,
-    height: u32,
-    faces: Vec<FaceJson>,
 }
 
 #[derive(serde::Serialize)]
