@@ -145,7 +145,7 @@ fn plane_step(moved: &[DVec3], normals: &[DVec3], t: &Similarity, pairs: &[(usiz
 }
 
 /// A grid cell of about 3 times the mean spacing of a surface sampled by `points`.
-fn cell_for(points: &[DVec3]) -> f64 {
+pub(crate) fn cell_for(points: &[DVec3]) -> f64 {
     let (lo, hi) = points
         .iter()
         .filter(|p| p.is_finite())

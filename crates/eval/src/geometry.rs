@@ -58,7 +58,7 @@ pub fn geometry_error(case: &GeometryCase, metric: Metric, iterations: usize) ->
     };
     let t = align::icp(case.predicted, case.predicted_normals, &crop, start, metric, iterations);
     let moved: Vec<DVec3> = case.predicted.iter().map(|p| t.apply(*p)).collect();
-    let grid = Grid::new(&moved, 4.0);
+    let grid = Grid::new(&moved, align::cell_for(&moved));
     let d: Vec<f64> = crop
         .iter()
         .filter_map(|q| {
