@@ -232,9 +232,7 @@ impl FrontEnd {
                 image.height()
             )));
         }
-        let (_, _, side) = crop::crop_square(&landmark_box);
-        let bucket = Bucket::from_side(side);
-        let crop = (self.crops && bucket != Bucket::TooSmall).then(|| crop::crop_face(image, &landmark_box));
+        let (bucket, crop) = self.frame(image, &landmark_box);
         Ok(Face {
             detection: Detection { face_box: landmark_box, score: 1.0, source: CALLER_SOURCE.into() },
             landmark_input_box: landmark_box,
@@ -244,6 +242,15 @@ impl FrontEnd {
             bucket,
             crop,
         })
+    }
+
+    /// The bucket of a face framed by its landmark box, and its crop when crops are made
+    /// and the face is large enough.
+    fn frame(&self, image: &RgbImage, landmark_box: &FaceBox) -> (Bucket, Option<Crop>) {
+        let (_, _, side) = crop::crop_square(landmark_box);
+        let bucket = Bucket::from_side(side);
+        let crop = (self.crops && bucket != Bucket::TooSmall).then(|| crop::crop_face(image, landmark_box));
+        (bucket, crop)
     }
 
     /// Landmarks, crop and bucket for one detection. The box is checked (a caller may
@@ -274,9 +281,7 @@ impl FrontEnd {
             }
         }
         let landmark_box = bounding_box(&landmarks.points).unwrap_or(landmark_input_box);
-        let (_, _, side) = crop::crop_square(&landmark_box);
-        let bucket = Bucket::from_side(side);
-        let crop = (self.crops && bucket != Bucket::TooSmall).then(|| crop::crop_face(image, &landmark_box));
+        let (bucket, crop) = self.frame(image, &landmark_box);
         Ok(Face { detection, landmark_input_box, landmark_passes, landmarks, landmark_box, bucket, crop })
     }
 }
