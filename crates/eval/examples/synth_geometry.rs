@@ -32,8 +32,9 @@ fn shape(model: &MorphableModel, identity: &[f32], expression: &[f32]) -> (Vec<D
     (d(&p), d(&n))
 }
 
-/// Per-face mean error (mm) of `predicted` against `truth`, both model space.
-fn error(model: &MorphableModel, pred: &Coefficients, truth: &(Vec<DVec3>, Vec<DVec3>), metric: Metric) -> f64 {
+/// Per-face mean error (mm) of `pred` against `truth`, both model space: point-to-plane,
+/// then point-to-point.
+fn errors(model: &MorphableModel, pred: &Coefficients, truth: &(Vec<DVec3>, Vec<DVec3>)) -> [f64; 2] {
     let (p, pn) = shape(model, &pred.identity, &pred.expression);
     let lm = model.landmarks();
     let pairs: Vec<(usize, usize)> = lm.iter().map(|&i| (i as usize, i as usize)).collect();
@@ -44,7 +45,8 @@ fn error(model: &MorphableModel, pred: &Coefficients, truth: &(Vec<DVec3>, Vec<D
         nose_tip: truth.0[lm[30] as usize],
         start_pairs: &pairs,
     };
-    geometry::geometry_error(&case, metric, ICP_ITERATIONS).expect("crop not empty").mean
+    [Metric::PointToPlane, Metric::PointToPoint]
+        .map(|m| geometry::geometry_error(&case, m, ICP_ITERATIONS).expect("crop not empty").mean)
 }
 
 #[derive(Default, Clone)]
@@ -110,12 +112,7 @@ fn main() {
                 let s = generator.sample(seed * 100 + bucket as u64, i).expect("sample");
                 let c = &s.truth.coefficients;
                 let truth = shape(&model, &c.identity, &c.expression);
-                let both = |pred: &Coefficients| {
-                    [
-                        error(&model, pred, &truth, Metric::PointToPlane),
-                        error(&model, pred, &truth, Metric::PointToPoint),
-                    ]
-                };
+                let both = |pred: &Coefficients| errors(&model, pred, &truth);
                 let mut neutral = c.clone();
                 neutral.identity.iter_mut().for_each(|x| *x = 0.0);
                 neutral.expression.iter_mut().for_each(|x| *x = 0.0);
