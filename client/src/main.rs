@@ -1,4 +1,5 @@
-//! `facerecon`: one command for both sides. Local subcommands run the engine in-process.
+//! `facerecon`: one command for both sides. Local subcommands run the engine in-process;
+//! `reconstruct` and `bulk` talk to a `facerecon-server` through the client library.
 
 mod cmd;
 
@@ -22,6 +23,10 @@ enum Command {
     Detect(cmd::detect::DetectArgs),
     /// Reconstruct 3D faces from photos (model fitted to the landmarks), in-process.
     Fit(cmd::fit::FitArgs),
+    /// Reconstruct 3D faces from photos through a facerecon server (the files of `fit`).
+    Reconstruct(cmd::reconstruct::ReconstructArgs),
+    /// Reconstruct a folder or list of photos through a server: streaming, resumable, shardable.
+    Bulk(cmd::bulk::BulkArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -31,6 +36,8 @@ fn main() -> std::process::ExitCode {
         Command::Synth(a) => cmd::synth::run(a),
         Command::Detect(a) => cmd::detect::run(a),
         Command::Fit(a) => cmd::fit::run(a),
+        Command::Reconstruct(a) => cmd::reconstruct::run(a),
+        Command::Bulk(a) => cmd::bulk::run(a),
     };
     match result {
         Ok(code) => code,

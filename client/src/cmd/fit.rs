@@ -5,14 +5,14 @@
 //! reconstruction | shape | albedo | shading, a row per face). `--json` prints one line per photo.
 
 use std::path::{Path, PathBuf};
+
 use std::process::ExitCode;
 
 use anyhow::Context;
 
-use super::ImageJson;
+use super::{ImageJson, files};
 use facerecon_model::MorphableModel;
-use facerecon_model::mesh::{glb, obj, ply};
-use facerecon_recon::outputs::{self, FaceRecord};
+use facerecon_recon::outputs;
 use facerecon_recon::{FaceSource, Options, Pipeline, Refine};
 use facerecon_vision::pipeline::FrontEnd;
 
@@ -131,7 +131,11 @@ fn one(pipeline: &Pipeline, args: &FitArgs, path: &Path) -> anyhow::Result<()> {
         let base = args.out.join(format!("{stem}-face{}", k + 1));
         let record = outputs::face_record(model, face);
         if let Some(r) = &record {
-            write_face(model, r, &base, !args.no_meshes)?;
+            let mesh = match args.no_meshes {
+                true => None,
+                false => Some(outputs::fitted_mesh(model, &r.coefficients)?),
+            };
+            files::write_face(r, mesh.as_ref(), &base)?;
         }
         let b = face.face.detection.face_box;
         faces_json.push(FaceJson {
@@ -144,11 +148,9 @@ fn one(pipeline: &Pipeline, args: &FitArgs, path: &Path) -> anyhow::Result<()> {
         });
     }
     let overlay = outputs::overlay(model, &recon, 0.85)?;
-    let overlay_path = args.out.join(format!("{stem}-overlay.png"));
-    overlay.save(&overlay_path).with_context(|| format!("writing {}", overlay_path.display()))?;
+    files::write_picture(&args.out, &stem, files::OVERLAY, &files::png(&overlay)?)?;
     if let Some(sbs) = outputs::side_by_side(model, &recon)? {
-        let p = args.out.join(format!("{stem}-sidebyside.png"));
-        sbs.save(&p).with_context(|| format!("writing {}", p.display()))?;
+        files::write_picture(&args.out, &stem, files::SIDE_BY_SIDE, &files::png(&sbs)?)?;
     }
     let name = path.display().to_string();
     if args.json {
@@ -165,25 +167,5 @@ fn one(pipeline: &Pipeline, args: &FitArgs, path: &Path) -> anyhow::Result<()> {
             }
         }
     }
-    Ok(())
-}
-
-fn write_face(model: &MorphableModel, record: &FaceRecord, base: &Path, meshes: bool) -> anyhow::Result<()> {
-    let with = |ext: &str| PathBuf::from(format!("{}.{ext}", base.display()));
-    let json = with("json");
-    std::fs::write(&json, serde_json::to_vec_pretty(record)?).with_context(|| format!("writing {}", json.display()))?;
-    if !meshes {
-        return Ok(());
-    }
-    let mesh = outputs::fitted_mesh(model, &record.coefficients)?;
-    let create = |p: &Path| {
-        std::fs::File::create(p).map(std::io::BufWriter::new).with_context(|| format!("creating {}", p.display()))
-    };
-    glb::write_glb(&mesh, create(&with("glb"))?)?;
-    ply::write_ply(&mesh, create(&with("ply"))?)?;
-    let mtl = with("mtl");
-    let mtl_name = mtl.file_name().map(|n| n.to_string_lossy().into_owned());
-    obj::write_obj(&mesh, create(&with("obj"))?, mtl_name.as_deref())?;
-    obj::write_mtl(create(&mtl)?)?;
     Ok(())
 }

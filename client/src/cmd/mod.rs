@@ -1,7 +1,11 @@
 //! One module per subcommand.
+pub mod bulk;
 pub mod detect;
+pub mod files;
 pub mod fit;
 pub mod model;
+pub mod reconstruct;
+pub mod remote;
 pub mod synth;
 
 /// One photo's line of `--json` output (`detect` and `fit`): the image as named on the

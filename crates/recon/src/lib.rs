@@ -182,32 +182,44 @@ impl Pipeline {
 
     /// Decodes `bytes` (within [`Self::limits`]) and reconstructs every face.
     pub fn reconstruct(&self, bytes: &[u8], options: &Options) -> Result<Reconstruction, ReconError> {
-        let image = decode::decode_with_limits(bytes, &self.limits).map_err(FrontEndError::from)?;
+        let image = self.decode(bytes)?;
         self.reconstruct_image(image, options)
+    }
+
+    /// Decodes a photo within [`Self::limits`], EXIF orientation applied.
+    pub fn decode(&self, bytes: &[u8]) -> Result<RgbImage, ReconError> {
+        Ok(decode::decode_with_limits(bytes, &self.limits).map_err(FrontEndError::from)?)
     }
 
     /// Reconstructs every face of a decoded image.
     pub fn reconstruct_image(&self, image: RgbImage, options: &Options) -> Result<Reconstruction, ReconError> {
+        let faces = self.find_faces(&image, options)?;
+        let faces = faces.into_par_iter().map(|face| self.fit_face(&image, face, options.refine)).collect();
+        Ok(Reconstruction { image, faces })
+    }
+
+    /// The faces to reconstruct, largest first: detected, or from the caller's boxes or
+    /// landmarks (validated). The first half of [`Self::reconstruct_image`]; the service runs
+    /// it per photo and batches the second half ([`Self::fit_face`]) across photos.
+    pub fn find_faces(&self, image: &RgbImage, options: &Options) -> Result<Vec<Face>, ReconError> {
         if options.max_faces == 0 {
             return Err(ReconError::Options("max_faces must be at least 1".into()));
         }
-        let faces: Vec<Face> = match &options.faces {
+        Ok(match &options.faces {
             FaceSource::Detect => {
-                let mut f = self.front.run(&image)?;
+                let mut f = self.front.run(image)?;
                 f.truncate(options.max_faces);
                 f
             }
             FaceSource::Boxes(b) => {
                 check_count(b.len(), options.max_faces)?;
-                self.front.run_boxes(&image, b)?
+                self.front.run_boxes(image, b)?
             }
             FaceSource::Landmarks(sets) => {
                 check_count(sets.len(), options.max_faces)?;
-                sets.iter().map(|p| self.front.face_from_landmarks(&image, p)).collect::<Result<_, _>>()?
+                sets.iter().map(|p| self.front.face_from_landmarks(image, p)).collect::<Result<_, _>>()?
             }
-        };
-        let faces = faces.into_par_iter().map(|face| self.fit_face(&image, face, options.refine)).collect();
-        Ok(Reconstruction { image, faces })
+        })
     }
 
     /// The fit of one face in its crop frame, to the level asked.

@@ -1,0 +1,232 @@
+//! Server configuration. Sources, each overriding the one before: built-in defaults, a
+//! TOML file (`--config FILE` / `FACERECON_CONFIG`), environment variables
+//! (`FACERECON_*`), command-line flags. `facerecon-server --help` lists every setting with
+//! its variable and default; `deploy/facerecon.toml` is a commented example file.
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+
+/// Everything the server is configured with.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Config {
+    /// gRPC address. Default `127.0.0.1:50051` (use `0.0.0.0:50051` in a container).
+    pub listen: SocketAddr,
+    /// Prometheus `/metrics` address; `None` turns the exporter off. Default `127.0.0.1:9464`.
+    pub metrics_listen: Option<SocketAddr>,
+    /// Model file; `None`: the ICT model built from the shared ICT-FaceKit folder.
+    pub model: Option<PathBuf>,
+    /// dlib 68-point shape predictor.
+    pub landmark_model: PathBuf,
+    /// Faces per batch handed to the backend at most.
+    pub max_batch_size: usize,
+    /// How long the batcher waits for a batch to fill, ms. 0 (default): greedy, a batch is
+    /// whatever is queued when the backend is free (docs/BENCHMARKS.md measures both).
+    pub max_queue_delay_ms: u64,
+    /// Photos admitted at once (queued or in work). A unary call beyond it gets
+    /// RESOURCE_EXHAUSTED at once; a stream waits.
+    pub queue_capacity: usize,
+    /// Threads for decoding, detection, fitting and outputs; 0: one per core.
+    pub cpu_threads: usize,
+    /// Largest gRPC message accepted or sent, bytes (photos exceed tonic's 4 MiB default).
+    /// Default 32 MiB.
+    pub max_message_bytes: usize,
+    /// Largest decoded photo, pixels (width × height, read from the header). Default 50 M.
+    pub max_image_pixels: u64,
+    /// Upper bound of a request's `max_faces`; also its default when the request gives 0.
+    pub max_faces: u32,
+    /// PEM certificate chain and key: serve TLS when both are set.
+    pub tls_cert: Option<PathBuf>,
+    pub tls_key: Option<PathBuf>,
+    /// When set, reconstruction calls need `authorization: Bearer <token>`. Health and
+    /// reflection stay open (probes). Prefer the environment variable to the file.
+    pub auth_token: Option<String>,
+    /// On SIGTERM/SIGINT, in-flight work gets this long to finish, seconds.
+    pub shutdown_grace_s: u64,
+    /// `text` or `json` log lines on stderr (level from `RUST_LOG`, default `info`).
+    pub log_format: LogFormat,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum LogFormat {
+    Text,
+    Json,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Config {
+            listen: SocketAddr::from(([127, 0, 0, 1], 50051)),
+            metrics_listen: Some(SocketAddr::from(([127, 0, 0, 1], 9464))),
+            model: None,
+            landmark_model: PathBuf::from(facerecon_vision::landmarks::DEFAULT_MODEL_PATH),
+            max_batch_size: 16,
+            max_queue_delay_ms: 0,
+            queue_capacity: 64,
+            cpu_threads: 0,
+            max_message_bytes: 32 << 20,
+            max_image_pixels: facerecon_vision::decode::DecodeLimits::DEFAULT_MAX_PIXELS,
+            max_faces: 16,
+            tls_cert: None,
+            tls_key: None,
+            auth_token: None,
+            shutdown_grace_s: 30,
+            log_format: LogFormat::Text,
+        }
+    }
+}
+
+impl Config {
+    /// Reads a TOML file over the defaults (unknown keys are an error).
+    pub fn from_file(path: &Path) -> anyhow::Result<Config> {
+        let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        toml::from_str(&text).with_context(|| format!("parsing {}", path.display()))
+    }
+
+    /// Checks values that the types allow but the server cannot run with.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        anyhow::ensure!(self.max_batch_size >= 1, "max_batch_size must be at least 1");
+        anyhow::ensure!(self.queue_capacity >= 1, "queue_capacity must be at least 1");
+        anyhow::ensure!(self.max_faces >= 1, "max_faces must be at least 1");
+        anyhow::ensure!(self.max_message_bytes >= 1024, "max_message_bytes must be at least 1024");
+        anyhow::ensure!(
+            self.tls_cert.is_some() == self.tls_key.is_some(),
+            "tls_cert and tls_key go together: set both or neither"
+        );
+        if let Some(t) = &self.auth_token {
+            anyhow::ensure!(!t.trim().is_empty(), "auth_token is empty");
+        }
+        Ok(())
+    }
+}
+
+/// Command-line flags; each may also come from its environment variable.
+#[derive(Debug, Default, clap::Parser)]
+#[command(name = "facerecon-server", version, about = "The facerecon gRPC service: photos to 3D faces")]
+pub struct Args {
+    /// TOML configuration file (keys as the flags, with `_` for `-`).
+    #[arg(long, env = "FACERECON_CONFIG")]
+    pub config: Option<PathBuf>,
+    /// gRPC address [default: 127.0.0.1:50051].
+    #[arg(long, env = "FACERECON_LISTEN")]
+    pub listen: Option<SocketAddr>,
+    /// Prometheus address, or `off` [default: 127.0.0.1:9464].
+    #[arg(long, env = "FACERECON_METRICS_LISTEN")]
+    pub metrics_listen: Option<String>,
+    /// Model file [default: the ICT model from the shared folder].
+    #[arg(long, env = "FACERECON_MODEL")]
+    pub model: Option<PathBuf>,
+    /// dlib 68-point shape predictor [default: the shared folder's].
+    #[arg(long, env = "FACERECON_LANDMARK_MODEL")]
+    pub landmark_model: Option<PathBuf>,
+    /// Faces per batch at most [default: 16].
+    #[arg(long, env = "FACERECON_MAX_BATCH_SIZE")]
+    pub max_batch_size: Option<usize>,
+    /// Batch fill wait, ms; 0 = greedy [default: 0].
+    #[arg(long, env = "FACERECON_MAX_QUEUE_DELAY_MS")]
+    pub max_queue_delay_ms: Option<u64>,
+    /// Photos admitted at once [default: 64].
+    #[arg(long, env = "FACERECON_QUEUE_CAPACITY")]
+    pub queue_capacity: Option<usize>,
+    /// CPU worker threads; 0 = one per core [default: 0].
+    #[arg(long, env = "FACERECON_CPU_THREADS")]
+    pub cpu_threads: Option<usize>,
+    /// Largest message, bytes [default: 33554432].
+    #[arg(long, env = "FACERECON_MAX_MESSAGE_BYTES")]
+    pub max_message_bytes: Option<usize>,
+    /// Largest photo, pixels [default: 50000000].
+    #[arg(long, env = "FACERECON_MAX_IMAGE_PIXELS")]
+    pub max_image_pixels: Option<u64>,
+    /// Most faces per photo [default: 16].
+    #[arg(long, env = "FACERECON_MAX_FACES")]
+    pub max_faces: Option<u32>,
+    /// PEM certificate chain (with --tls-key: serve TLS).
+    #[arg(long, env = "FACERECON_TLS_CERT")]
+    pub tls_cert: Option<PathBuf>,
+    /// PEM private key.
+    #[arg(long, env = "FACERECON_TLS_KEY")]
+    pub tls_key: Option<PathBuf>,
+    /// Bearer token required by reconstruction calls.
+    #[arg(long, env = "FACERECON_AUTH_TOKEN", hide_env_values = true)]
+    pub auth_token: Option<String>,
+    /// Seconds in-flight work gets after SIGTERM [default: 30].
+    #[arg(long, env = "FACERECON_SHUTDOWN_GRACE_S")]
+    pub shutdown_grace_s: Option<u64>,
+    /// Log line format [default: text].
+    #[arg(long, env = "FACERECON_LOG_FORMAT", value_enum)]
+    pub log_format: Option<LogFormat>,
+}
+
+impl Args {
+    /// Defaults, then the file, then environment and flags (clap reads both).
+    pub fn resolve(self) -> anyhow::Result<Config> {
+        let mut c = match &self.config {
+            Some(p) => Config::from_file(p)?,
+            None => Config::default(),
+        };
+        macro_rules! set {
+            ($($f:ident),*) => { $( if let Some(v) = self.$f { c.$f = v; } )* };
+        }
+        macro_rules! set_some {
+            ($($f:ident),*) => { $( if let Some(v) = self.$f { c.$f = Some(v); } )* };
+        }
+        set!(listen, landmark_model, max_batch_size, max_queue_delay_ms, queue_capacity, cpu_threads);
+        set!(max_message_bytes, max_image_pixels, max_faces, shutdown_grace_s, log_format);
+        set_some!(model, tls_cert, tls_key, auth_token);
+        if let Some(m) = self.metrics_listen {
+            c.metrics_listen = match m.as_str() {
+                "off" | "" => None,
+                a => Some(a.parse().with_context(|| format!("--metrics-listen {a:?}: not an address or `off`"))?),
+            };
+        }
+        c.validate()?;
+        Ok(c)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[test]
+    fn layers_file_then_flags() {
+        let dir = std::env::temp_dir().join(format!("facerecon-config-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("server.toml");
+        std::fs::write(&file, "listen = \"0.0.0.0:6000\"\nmax_batch_size = 4\nmetrics_listen = \"127.0.0.1:7000\"\n")
+            .unwrap();
+        let args = Args::try_parse_from([
+            "facerecon-server",
+            "--config",
+            file.to_str().unwrap(),
+            "--max-batch-size",
+            "8",
+            "--metrics-listen",
+            "off",
+        ])
+        .unwrap();
+        let c = args.resolve().unwrap();
+        assert_eq!(c.listen, "0.0.0.0:6000".parse().unwrap());
+        assert_eq!(c.max_batch_size, 8, "a flag wins over the file");
+        assert_eq!(c.metrics_listen, None);
+        assert_eq!(c.queue_capacity, Config::default().queue_capacity);
+    }
+
+    #[test]
+    fn rejects_unknown_keys_and_bad_values() {
+        let dir = std::env::temp_dir().join(format!("facerecon-config-bad-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("server.toml");
+        std::fs::write(&file, "listne = \"0.0.0.0:6000\"\n").unwrap();
+        let e = Config::from_file(&file).unwrap_err();
+        assert!(format!("{e:#}").contains("listne"), "{e:#}");
+        let c = Config { max_batch_size: 0, ..Config::default() };
+        assert!(c.validate().is_err());
+        let c = Config { tls_cert: Some("a.pem".into()), ..Config::default() };
+        assert!(c.validate().is_err());
+    }
+}

@@ -1,0 +1,317 @@
+//! The work behind the RPC handlers, in the shape of text-embeddings-inference's router:
+//!
+//! * **admission**: a semaphore of `queue_capacity` photos. A unary call that finds it full
+//!   is refused at once (RESOURCE_EXHAUSTED); a stream waits for room (back-pressure).
+//! * **per photo, on the CPU pool**: decode (with limits) and find the faces (detection and
+//!   landmarks, or the caller's boxes or landmarks).
+//! * **one batcher task** owns the face queue. It takes the first waiting face, then
+//!   either everything else already queued ("greedy", `max_queue_delay_ms = 0`) or what
+//!   arrives within the delay, up to `max_batch_size`; drops faces whose caller went away
+//!   or whose deadline passed; and hands the batch, each face with its resolution bucket,
+//!   to the backend (the fit, in parallel over the batch on the CPU pool). Only one batch
+//!   is in the backend at a time, so batches form while it works.
+//! * **per photo, on the CPU pool**: the outputs (meshes, pictures).
+//!
+//! Work whose caller went away is dropped before it starts: every stage's result goes to a
+//! oneshot channel, and a stage whose receiver is gone does not run. Panics in a stage
+//! become INTERNAL for that request only.
+
+use std::panic::AssertUnwindSafe;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use facerecon_recon::{FaceRecon, Options, Pipeline, Reconstruction, Refine};
+use facerecon_vision::pipeline::Face;
+use image::RgbImage;
+use rayon::prelude::*;
+use tokio::sync::{Semaphore, mpsc, oneshot};
+use tonic::Status;
+
+use crate::convert::{self, Wanted};
+use crate::metrics as m;
+use facerecon_proto::v1 as pb;
+
+/// Batching and capacity settings (from the server configuration).
+#[derive(Clone, Copy, Debug)]
+pub struct EngineSettings {
+    pub max_batch_size: usize,
+    /// `None`: greedy.
+    pub max_queue_delay: Option<Duration>,
+    pub queue_capacity: usize,
+}
+
+/// One photo to reconstruct.
+pub struct Job {
+    pub id: String,
+    pub image: Vec<u8>,
+    pub options: Options,
+    pub wanted: Wanted,
+    pub deadline: Option<Instant>,
+}
+
+/// One face waiting for the backend.
+struct FaceJob {
+    image: Arc<RgbImage>,
+    face: Face,
+    refine: Refine,
+    deadline: Option<Instant>,
+    enqueued: Instant,
+    reply: oneshot::Sender<FaceRecon>,
+}
+
+/// The loaded pipeline, the CPU pool, the admission semaphore and the batcher's queue.
+pub struct Engine {
+    pipeline: Arc<Pipeline>,
+    pool: Arc<rayon::ThreadPool>,
+    admission: Arc<Semaphore>,
+    faces: mpsc::UnboundedSender<FaceJob>,
+    settings: EngineSettings,
+}
+
+/// A photo's place in the queue; dropping it frees the place.
+pub struct Admitted {
+    _permit: tokio::sync::OwnedSemaphorePermit,
+}
+
+impl Drop for Admitted {
+    fn drop(&mut self) {
+        metrics::gauge!(m::QUEUE_DEPTH).decrement(1.0);
+    }
+}
+
+impl Engine {
+    /// Starts the batcher task (on the current tokio runtime).
+    pub fn start(pipeline: Arc<Pipeline>, pool: Arc<rayon::ThreadPool>, settings: EngineSettings) -> Arc<Engine> {
+        let (tx, rx) = mpsc::unbounded_channel();
+        // The face queue is bounded by admission: at most queue_capacity photos of at most
+        // max_faces faces each are in the system.
+        tokio::spawn(batcher(rx, pipeline.clone(), pool.clone(), settings));
+        Arc::new(Engine {
+            pipeline,
+            pool,
+            admission: Arc::new(Semaphore::new(settings.queue_capacity)),
+            faces: tx,
+            settings,
+        })
+    }
+
+    pub fn pipeline(&self) -> &Arc<Pipeline> {
+        &self.pipeline
+    }
+
+    /// A place in the queue now, or RESOURCE_EXHAUSTED.
+    pub fn try_admit(&self) -> Result<Admitted, Status> {
+        match self.admission.clone().try_acquire_owned() {
+            Ok(p) => Ok(self.admitted(p)),
+            Err(_) => {
+                metrics::counter!(m::REJECTED).increment(1);
+                Err(Status::resource_exhausted(format!(
+                    "server busy: {} photos queued or in work; retry with backoff",
+                    self.settings.queue_capacity
+                )))
+            }
+        }
+    }
+
+    /// A place in the queue, waiting for one.
+    pub async fn admit(&self) -> Admitted {
+        let p = self.admission.clone().acquire_owned().await.expect("the admission semaphore is never closed");
+        self.admitted(p)
+    }
+
+    fn admitted(&self, p: tokio::sync::OwnedSemaphorePermit) -> Admitted {
+        metrics::gauge!(m::QUEUE_DEPTH).increment(1.0);
+        Admitted { _permit: p }
+    }
+
+    /// Reconstructs one admitted photo. Deadlines are the caller's to enforce around this
+    /// future (dropping it cancels the remaining work); stages also check it.
+    pub async fn run(&self, job: Job, _admitted: &Admitted) -> Result<pb::ReconstructResponse, Status> {
+        let received = Instant::now();
+        let Job { id, image, options, wanted, deadline } = job;
+        let pipeline = self.pipeline.clone();
+        let opts = options.clone();
+        let t = Instant::now();
+        let found = on_pool(&self.pool, move || {
+            let image = pipeline.decode(&image)?;
+            let faces = pipeline.find_faces(&image, &opts)?;
+            Ok::<_, facerecon_recon::ReconError>((image, faces))
+        })
+        .await?;
+        let (image, faces) = found.map_err(|e| convert::recon_status(&e))?;
+        let decode_detect_s = t.elapsed().as_secs_f64();
+        metrics::histogram!(m::STAGE_SECONDS, "stage" => "decode_detect").record(decode_detect_s);
+        metrics::histogram!(m::FACES_PER_IMAGE).record(faces.len() as f64);
+        check_deadline(deadline)?;
+
+        let t = Instant::now();
+        let image = Arc::new(image);
+        let mut replies = Vec::with_capacity(faces.len());
+        for face in faces {
+            let (tx, rx) = oneshot::channel();
+            let job = FaceJob {
+                image: image.clone(),
+                face,
+                refine: options.refine,
+                deadline,
+                enqueued: Instant::now(),
+                reply: tx,
+            };
+            self.faces.send(job).map_err(|_| Status::unavailable("the server is shutting down"))?;
+            replies.push(rx);
+        }
+        let mut recons = Vec::with_capacity(replies.len());
+        for rx in replies {
+            // A face dropped by the batcher (deadline) closes its channel.
+            recons.push(rx.await.map_err(|_| deadline_status(deadline))?);
+        }
+        let fit_s = t.elapsed().as_secs_f64();
+
+        let t = Instant::now();
+        let recon = Reconstruction { image: Arc::unwrap_or_clone(image), faces: recons };
+        let pipeline = self.pipeline.clone();
+        let mut response = on_pool(&self.pool, move || convert::response(pipeline.model(), &recon, &wanted)).await??;
+        let outputs_s = t.elapsed().as_secs_f64();
+        metrics::histogram!(m::STAGE_SECONDS, "stage" => "outputs").record(outputs_s);
+        response.id = id;
+        response.timing = Some(pb::Timing {
+            queue_s: (received.elapsed().as_secs_f64() - decode_detect_s - fit_s - outputs_s).max(0.0),
+            decode_detect_s,
+            fit_s,
+            outputs_s,
+        });
+        Ok(response)
+    }
+}
+
+fn check_deadline(deadline: Option<Instant>) -> Result<(), Status> {
+    match deadline {
+        Some(d) if Instant::now() >= d => Err(deadline_status(deadline)),
+        _ => Ok(()),
+    }
+}
+
+fn deadline_status(deadline: Option<Instant>) -> Status {
+    if deadline.is_some_and(|d| Instant::now() >= d) {
+        Status::deadline_exceeded("deadline exceeded before the reconstruction finished")
+    } else {
+        Status::unavailable("the server is shutting down")
+    }
+}
+
+/// Runs `f` on the CPU pool unless the caller has gone away first. A panic in `f` is the
+/// server's fault and answers INTERNAL.
+pub async fn on_pool<T: Send + 'static>(
+    pool: &rayon::ThreadPool,
+    f: impl FnOnce() -> T + Send + 'static,
+) -> Result<T, Status> {
+    let (tx, rx) = oneshot::channel();
+    pool.spawn(move || {
+        if tx.is_closed() {
+            metrics::counter!(m::DROPPED, "stage" => "cpu").increment(1);
+            return;
+        }
+        let r = std::panic::catch_unwind(AssertUnwindSafe(f));
+        let _ = tx.send(r);
+    });
+    match rx.await {
+        Ok(Ok(v)) => Ok(v),
+        Ok(Err(panic)) => {
+            let what = panic
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_default();
+            tracing::error!(panic = %what, "a pipeline stage panicked");
+            Err(Status::internal("the server failed on this request (a bug; it is logged)"))
+        }
+        Err(_) => Err(Status::internal("the CPU pool dropped a task")),
+    }
+}
+
+async fn batcher(
+    mut rx: mpsc::UnboundedReceiver<FaceJob>,
+    pipeline: Arc<Pipeline>,
+    pool: Arc<rayon::ThreadPool>,
+    settings: EngineSettings,
+) {
+    while let Some(first) = rx.recv().await {
+        let mut batch = vec![first];
+        match settings.max_queue_delay {
+            None => {
+                while batch.len() < settings.max_batch_size {
+                    match rx.try_recv() {
+                        Ok(j) => batch.push(j),
+                        Err(_) => break,
+                    }
+                }
+            }
+            Some(delay) => {
+                let until = tokio::time::Instant::now() + delay;
+                while batch.len() < settings.max_batch_size {
+                    match tokio::time::timeout_at(until, rx.recv()).await {
+                        Ok(Some(j)) => batch.push(j),
+                        _ => break,
+                    }
+                }
+            }
+        }
+        let now = Instant::now();
+        batch.retain(|j| {
+            if j.reply.is_closed() {
+                metrics::counter!(m::DROPPED, "stage" => "batch").increment(1);
+                false
+            } else if j.deadline.is_some_and(|d| now >= d) {
+                // Dropping the sender tells the photo's task (which answers DEADLINE_EXCEEDED).
+                metrics::counter!(m::DROPPED, "stage" => "deadline").increment(1);
+                false
+            } else {
+                metrics::histogram!(m::QUEUE_SECONDS).record(now.duration_since(j.enqueued).as_secs_f64());
+                true
+            }
+        });
+        if batch.is_empty() {
+            continue;
+        }
+        metrics::histogram!(m::BATCH_SIZE).record(batch.len() as f64);
+        for j in &batch {
+            metrics::counter!(m::FACES, "bucket" => bucket_label(&j.face)).increment(1);
+        }
+        let t = Instant::now();
+        let p = pipeline.clone();
+        // On a pool thread, `par_iter` spreads the batch over the same pool.
+        let done = on_pool(&pool, move || {
+            batch
+                .into_par_iter()
+                .map(|j| {
+                    let FaceJob { image, face, refine, reply, .. } = j;
+                    let r = p.fit_face(&image, face, refine);
+                    // Before the reply, so that the photo's task can take the image back.
+                    drop(image);
+                    (reply, r)
+                })
+                .collect::<Vec<_>>()
+        })
+        .await;
+        metrics::histogram!(m::STAGE_SECONDS, "stage" => "fit_batch").record(t.elapsed().as_secs_f64());
+        match done {
+            Ok(results) => {
+                for (reply, r) in results {
+                    let _ = reply.send(r);
+                }
+            }
+            // A panic in a fit: the batch's senders are dropped, its callers get an error.
+            Err(e) => tracing::error!(status = %e, "a batch failed"),
+        }
+    }
+}
+
+fn bucket_label(face: &Face) -> &'static str {
+    match face.bucket.index() {
+        Some(0) => "0",
+        Some(1) => "1",
+        Some(2) => "2",
+        Some(3) => "3",
+        _ => "too_small",
+    }
+}
