@@ -107,6 +107,17 @@ impl Request {
     }
 }
 
+/// tonic's channel enforces a call's `grpc-timeout` on the client side too and reports its
+/// own expiry as CANCELLED ("Timeout expired"); it is the caller's deadline, so it is
+/// reported as DEADLINE_EXCEEDED, the code the server gives for the same deadline.
+fn local_deadline(s: tonic::Status) -> tonic::Status {
+    if s.code() == tonic::Code::Cancelled && s.message().contains("Timeout expired") {
+        tonic::Status::deadline_exceeded(format!("deadline exceeded ({})", s.message()))
+    } else {
+        s
+    }
+}
+
 #[derive(Clone)]
 struct Auth(Option<MetadataValue<Ascii>>);
 
@@ -276,7 +287,7 @@ impl Client {
                     tokio::time::sleep(base.mul_f64(jitter)).await;
                     attempt += 1;
                 }
-                Err(s) => return Err(ClientError::Status(s)),
+                Err(s) => return Err(ClientError::Status(local_deadline(s))),
             }
         }
     }
@@ -336,14 +347,20 @@ impl Client {
             }
         });
         let req = self.request(tokio_stream::wrappers::ReceiverStream::new(rx));
-        let inbound = self.stub.clone().reconstruct_stream(req).await.map_err(ClientError::Status)?.into_inner();
+        let inbound = self
+            .stub
+            .clone()
+            .reconstruct_stream(req)
+            .await
+            .map_err(|s| ClientError::Status(local_deadline(s)))?
+            .into_inner();
         Ok(inbound.map(move |item| match item {
             Ok(m) => {
                 window.add_permits(1);
                 let id = m.id.clone();
                 Ok((id, Reconstruction::from_message(m)))
             }
-            Err(s) => Err(ClientError::Status(s)),
+            Err(s) => Err(ClientError::Status(local_deadline(s))),
         }))
     }
 }

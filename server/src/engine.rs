@@ -31,6 +31,18 @@ use crate::convert::{self, Wanted};
 use crate::metrics as m;
 use facerecon_proto::v1 as pb;
 
+/// The pool the CPU stages run on (decode, detect, fit, outputs).
+pub type CpuPool = rayon::ThreadPool;
+
+/// A CPU pool of `threads` threads (0: one per core).
+pub fn cpu_pool(threads: usize) -> Result<CpuPool, rayon::ThreadPoolBuildError> {
+    let threads = match threads {
+        0 => std::thread::available_parallelism().map_or(2, |n| n.get()),
+        n => n,
+    };
+    rayon::ThreadPoolBuilder::new().num_threads(threads).thread_name(|i| format!("facerecon-cpu-{i}")).build()
+}
+
 /// Batching and capacity settings (from the server configuration).
 #[derive(Clone, Copy, Debug)]
 pub struct EngineSettings {

@@ -89,17 +89,8 @@ pub async fn serve(
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<()> {
     config.validate()?;
-    let threads = match config.cpu_threads {
-        0 => std::thread::available_parallelism().map_or(2, |n| n.get()),
-        n => n,
-    };
-    let pool = Arc::new(
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .thread_name(|i| format!("facerecon-cpu-{i}"))
-            .build()
-            .context("starting the CPU pool")?,
-    );
+    let pool = Arc::new(engine::cpu_pool(config.cpu_threads).context("starting the CPU pool")?);
+    let threads = pool.current_num_threads();
     let state = Arc::new(State { engine: OnceLock::new(), model_info: OnceLock::new(), max_faces: config.max_faces });
     let (reporter, health) = tonic_health::server::health_reporter();
     reporter.set_service_status("", ServingStatus::NotServing).await;

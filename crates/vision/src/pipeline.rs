@@ -54,6 +54,9 @@ pub enum FrontEndError {
     /// A caller-supplied box that is not a proper box (non-finite, empty or inverted).
     #[error("invalid face box ({x0}, {y0})–({x1}, {y1}): need finite coordinates with x0 < x1 and y0 < y1")]
     InvalidBox { x0: f32, y0: f32, x1: f32, y1: f32 },
+    /// A caller-supplied box that does not overlap the image.
+    #[error("face box ({x0}, {y0})–({x1}, {y1}) lies outside the {width}×{height} image")]
+    BoxOutsideImage { x0: f32, y0: f32, x1: f32, y1: f32, width: u32, height: u32 },
     /// Caller-supplied landmarks that cannot be used.
     #[error("invalid landmarks: {0}")]
     InvalidLandmarks(String),
@@ -77,9 +80,10 @@ impl FrontEndError {
                 | DecodeError::TooManyPixels { .. }
                 | DecodeError::AllocationLimit { .. },
             ) => ErrorKind::Resources,
-            FrontEndError::Decode(_) | FrontEndError::InvalidBox { .. } | FrontEndError::InvalidLandmarks(_) => {
-                ErrorKind::Input
-            }
+            FrontEndError::Decode(_)
+            | FrontEndError::InvalidBox { .. }
+            | FrontEndError::BoxOutsideImage { .. }
+            | FrontEndError::InvalidLandmarks(_) => ErrorKind::Input,
             FrontEndError::TooManyFaces { .. } => ErrorKind::Input,
             FrontEndError::Detect(_) | FrontEndError::Landmarks(_) => ErrorKind::Internal,
         }
@@ -200,6 +204,14 @@ impl FrontEnd {
     pub fn run_boxes(&self, image: &RgbImage, boxes: &[FaceBox]) -> Result<Vec<Face>, FrontEndError> {
         if boxes.len() > self.max_faces {
             return Err(FrontEndError::TooManyFaces { given: boxes.len(), limit: self.max_faces });
+        }
+        let (w, h) = (image.width() as f32, image.height() as f32);
+        for b in boxes {
+            // Boxes cut by the border are fine (a face at the edge); boxes off the image are not.
+            if b.is_proper() && (b.x1 < -0.5 || b.y1 < -0.5 || b.x0 > w - 0.5 || b.y0 > h - 0.5) {
+                let (width, height) = image.dimensions();
+                return Err(FrontEndError::BoxOutsideImage { x0: b.x0, y0: b.y0, x1: b.x1, y1: b.y1, width, height });
+            }
         }
         boxes
             .par_iter()
@@ -471,6 +483,13 @@ mod tests {
             assert!(matches!(e, FrontEndError::InvalidBox { .. }), "{e}");
             assert_eq!(e.kind(), ErrorKind::Input);
         }
+        for off in [d(200.0, 10.0, 250.0, 60.0), d(-90.0, 10.0, -1.0, 60.0), d(10.0, 81.0, 50.0, 90.0)] {
+            let e = fe.run_boxes(&img, &[off]).unwrap_err();
+            assert!(matches!(e, FrontEndError::BoxOutsideImage { width: 100, height: 80, .. }), "{e}");
+            assert_eq!(e.kind(), ErrorKind::Input);
+        }
+        // Cut by the border: accepted.
+        assert_eq!(fe.run_boxes(&img, &[d(-20.0, -10.0, 30.0, 40.0)]).unwrap().len(), 1);
         let ok = fe.run_boxes(&img, &[d(10.0, 10.0, 50.0, 60.0)]).unwrap();
         assert_eq!(ok.len(), 1);
         assert_eq!(ok[0].detection.source, CALLER_SOURCE);

@@ -1,0 +1,502 @@
+//! The service end to end over loopback sockets: a `facerecon-server` in this process, the
+//! client library and raw gRPC stubs on the other side. Every bad input gets its precise
+//! status and the server goes on serving.
+
+use std::time::Duration;
+
+use facerecon_client::{Client, ClientError, ConnectOptions, Request, proto as pb};
+use facerecon_server::Config;
+use facerecon_tests::{TestServer, photos, png, png_header_claiming};
+use tokio_stream::StreamExt;
+use tonic::Code;
+
+fn options() -> ConnectOptions {
+    ConnectOptions { retries: 0, ..ConnectOptions::default() }
+}
+
+async fn client(s: &TestServer) -> Client {
+    Client::connect(&[s.url()], options()).await.expect("connecting")
+}
+
+fn code(r: Result<facerecon_client::Reconstruction, ClientError>) -> Code {
+    match r {
+        Ok(_) => Code::Ok,
+        Err(e) => e.code().unwrap_or_else(|| panic!("not a status: {e}")),
+    }
+}
+
+fn photo(k: usize) -> Vec<u8> {
+    std::fs::read(&photos(k + 1)[k]).unwrap()
+}
+
+fn pts(k: usize) -> Vec<[f32; 2]> {
+    let p = photos(k + 1)[k].with_extension("pts");
+    facerecon_vision::pts::read(&std::fs::read(p).unwrap()).unwrap()
+}
+
+fn with(options: pb::Options, bytes: Vec<u8>) -> Request {
+    Request::new("t", bytes).with_options(options)
+}
+
+/// A good photo answers every output, consistent with the model's topology.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_photo_gets_coefficients_meshes_and_pictures() {
+    let s = TestServer::start(Config::default()).await;
+    let c = client(&s).await;
+    let model = c.model().await.unwrap();
+    assert_eq!(model.info.landmark_vertices.len(), 68);
+    assert_eq!(model.uvs.len(), model.info.vertex_count as usize);
+    let opts = pb::Options {
+        outputs: Some(pb::Outputs {
+            mesh_arrays: true,
+            mesh_files: vec![pb::MeshFormat::Glb as i32, pb::MeshFormat::Ply as i32, pb::MeshFormat::Obj as i32],
+            overlay: true,
+            side_by_side: true,
+            displacement_map: false,
+        }),
+        ..Default::default()
+    };
+    let bytes = photo(0);
+    let r = c.reconstruct(with(opts, bytes.clone()).clone()).await.unwrap();
+    let img = image::load_from_memory(&bytes).unwrap();
+    assert_eq!((r.width, r.height), (img.width(), img.height()));
+    assert_eq!(r.faces.len(), 1);
+    let face = &r.faces[0];
+    assert_eq!(face.landmarks.len(), 68);
+    assert!(face.bucket.is_some());
+    let fit = face.fit.as_ref().unwrap();
+    assert_eq!(fit.coefficients.identity.len(), model.info.identity_count as usize);
+    assert_eq!(fit.coefficients.expression.len(), model.info.expression_count as usize);
+    assert!(fit.landmark_rms_px < 10.0, "{}", fit.landmark_rms_px);
+    // The record agrees with the in-process pipeline's.
+    let local = facerecon_tests::pipeline().reconstruct(&bytes, &Default::default()).unwrap();
+    let local_record =
+        facerecon_recon::outputs::face_record(facerecon_tests::pipeline().model(), &local.faces[0]).unwrap();
+    let remote_record = face.record(&model.info).unwrap();
+    assert_eq!(serde_json::to_value(&local_record).unwrap(), serde_json::to_value(&remote_record).unwrap());
+    // Meshes: arrays complete, files with their magic, pictures decodable.
+    let mesh = model.mesh(fit.mesh.as_ref().unwrap()).unwrap();
+    mesh.validate().unwrap();
+    let files: Vec<_> = fit.mesh_files.iter().map(|(f, d)| (*f, d.clone())).collect();
+    assert_eq!(files.len(), 3);
+    assert_eq!(&files[0].1[..4], b"glTF");
+    assert!(files[1].1.starts_with(b"ply\n"));
+    assert!(String::from_utf8_lossy(&files[2].1).contains(&format!("{} vertices", model.info.vertex_count)));
+    let overlay = image::load_from_memory(r.overlay_png.as_ref().unwrap()).unwrap();
+    assert_eq!((overlay.width(), overlay.height()), (img.width(), img.height()));
+    assert!(image::load_from_memory(r.side_by_side_png.as_ref().unwrap()).is_ok());
+    s.stop().await.unwrap();
+}
+
+/// Each bad input gets its precise status; the server keeps serving after all of them.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_input_gets_its_precise_status() {
+    let s = TestServer::start(Config { max_message_bytes: 4 << 20, ..Config::default() }).await;
+    let c = client(&s).await;
+    let good = photo(0);
+    let truth = pts(0);
+    let o = pb::Options::default;
+    let jpeg = {
+        let img = image::load_from_memory(&good).unwrap().to_rgb8();
+        let mut out = std::io::Cursor::new(Vec::new());
+        img.write_to(&mut out, image::ImageFormat::Jpeg).unwrap();
+        out.into_inner()
+    };
+    let cases: Vec<(&str, Request, Code, &str)> = vec![
+        ("garbage", with(o(), b"this is not an image".to_vec()), Code::InvalidArgument, "unknown image format"),
+        ("0 bytes", with(o(), Vec::new()), Code::InvalidArgument, "empty"),
+        ("JPEG cut in its headers", with(o(), jpeg[..200].to_vec()), Code::InvalidArgument, "corrupt or truncated"),
+        ("truncated PNG", with(o(), good[..good.len() / 2].to_vec()), Code::InvalidArgument, "truncated"),
+        ("50000×50000 PNG", with(o(), png_header_claiming(50_000, 50_000)), Code::ResourceExhausted, "too large"),
+        ("over the message limit", with(o(), vec![0u8; 5 << 20]), Code::ResourceExhausted, "message length too large"),
+        (
+            "refine FULL",
+            with(pb::Options { refine: pb::Refine::Full as i32, ..o() }, good.clone()),
+            Code::Unimplemented,
+            "not built",
+        ),
+        ("unknown refine", with(pb::Options { refine: 99, ..o() }, good.clone()), Code::InvalidArgument, "refine"),
+        (
+            "displacement map",
+            with(
+                pb::Options { outputs: Some(pb::Outputs { displacement_map: true, ..Default::default() }), ..o() },
+                good.clone(),
+            ),
+            Code::Unimplemented,
+            "displacement",
+        ),
+        (
+            "unknown mesh format",
+            with(
+                pb::Options { outputs: Some(pb::Outputs { mesh_files: vec![0], ..Default::default() }), ..o() },
+                good.clone(),
+            ),
+            Code::InvalidArgument,
+            "mesh format",
+        ),
+        (
+            "max_faces above the limit",
+            with(pb::Options { max_faces: 1000, ..o() }, good.clone()),
+            Code::InvalidArgument,
+            "limit",
+        ),
+        (
+            "boxes and landmarks",
+            with(
+                pb::Options {
+                    boxes: vec![pb::Box { x0: 1.0, y0: 1.0, x1: 50.0, y1: 50.0 }],
+                    landmarks: vec![pb::LandmarkSet {
+                        points: truth.iter().map(|p| pb::Point { x: p[0], y: p[1] }).collect(),
+                    }],
+                    ..o()
+                },
+                good.clone(),
+            ),
+            Code::InvalidArgument,
+            "not both",
+        ),
+        (
+            "NaN box",
+            with(
+                pb::Options { boxes: vec![pb::Box { x0: f32::NAN, y0: 1.0, x1: 50.0, y1: 50.0 }], ..o() },
+                good.clone(),
+            ),
+            Code::InvalidArgument,
+            "box",
+        ),
+        (
+            "box outside the image",
+            with(
+                pb::Options { boxes: vec![pb::Box { x0: 1e6, y0: 1e6, x1: 1e6 + 100.0, y1: 1e6 + 100.0 }], ..o() },
+                good.clone(),
+            ),
+            Code::InvalidArgument,
+            "box",
+        ),
+        (
+            "NaN landmark",
+            with(
+                pb::Options {
+                    landmarks: vec![pb::LandmarkSet {
+                        points: truth
+                            .iter()
+                            .enumerate()
+                            .map(|(i, p)| pb::Point { x: if i == 7 { f32::NAN } else { p[0] }, y: p[1] })
+                            .collect(),
+                    }],
+                    ..o()
+                },
+                good.clone(),
+            ),
+            Code::InvalidArgument,
+            "point 8",
+        ),
+        (
+            "landmarks outside the image",
+            with(
+                pb::Options {
+                    landmarks: vec![pb::LandmarkSet {
+                        points: truth.iter().map(|p| pb::Point { x: p[0] + 1e5, y: p[1] }).collect(),
+                    }],
+                    ..o()
+                },
+                good.clone(),
+            ),
+            Code::InvalidArgument,
+            "outside",
+        ),
+        (
+            "67 landmarks",
+            with(
+                pb::Options {
+                    landmarks: vec![pb::LandmarkSet {
+                        points: truth[..67].iter().map(|p| pb::Point { x: p[0], y: p[1] }).collect(),
+                    }],
+                    ..o()
+                },
+                good.clone(),
+            ),
+            Code::InvalidArgument,
+            "68",
+        ),
+    ];
+    for (what, req, want, text) in cases {
+        match c.reconstruct(req).await {
+            Ok(_) => panic!("{what}: answered OK, wanted {want:?}"),
+            Err(e) => {
+                assert_eq!(e.code(), Some(want), "{what}: {e}");
+                assert!(e.to_string().contains(text), "{what}: {e:?} lacks {text:?}");
+            }
+        }
+    }
+    // A JPEG cut inside its entropy-coded data decodes to its first part (libjpeg fills
+    // the rest in grey, as OpenCV and browsers do): an answer, not an error.
+    let r = c.reconstruct(with(o(), jpeg[..jpeg.len() * 9 / 10].to_vec())).await.unwrap();
+    assert_eq!(r.width, image::load_from_memory(&good).unwrap().width());
+    // No face is not an error.
+    let blank = png(&image::RgbImage::from_pixel(320, 240, image::Rgb([128, 128, 128])));
+    let r = c.reconstruct(with(o(), blank)).await.unwrap();
+    assert!(r.faces.is_empty());
+    // Client boxes and client landmarks.
+    let b = facerecon_vision::face::FaceBox::of_points(truth.iter().copied()).unwrap();
+    let r = c
+        .reconstruct(with(
+            pb::Options { boxes: vec![pb::Box { x0: b.x0, y0: b.y0, x1: b.x1, y1: b.y1 }], ..o() },
+            good.clone(),
+        ))
+        .await
+        .unwrap();
+    assert_eq!(r.faces.len(), 1);
+    assert!(r.faces[0].fit.is_ok());
+    let set = pb::LandmarkSet { points: truth.iter().map(|p| pb::Point { x: p[0], y: p[1] }).collect() };
+    let r = c.reconstruct(with(pb::Options { landmarks: vec![set], ..o() }, good.clone())).await.unwrap();
+    assert_eq!(r.faces.len(), 1);
+    assert_eq!(r.faces[0].landmarks, truth);
+    // And still serving.
+    assert_eq!(c.reconstruct(with(o(), good)).await.unwrap().faces.len(), 1);
+    s.stop().await.unwrap();
+}
+
+/// Two photos side by side: two faces, largest first.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn several_faces() {
+    let s = TestServer::start(Config::default()).await;
+    let c = client(&s).await;
+    let a = image::load_from_memory(&photo(0)).unwrap().to_rgb8();
+    let b = image::load_from_memory(&photo(1)).unwrap().to_rgb8();
+    let mut both = image::RgbImage::new(a.width() + b.width(), a.height().max(b.height()));
+    image::imageops::replace(&mut both, &a, 0, 0);
+    image::imageops::replace(&mut both, &b, a.width() as i64, 0);
+    let r = c.reconstruct(Request::new("two", png(&both))).await.unwrap();
+    assert_eq!(r.faces.len(), 2, "{:?}", r.faces.iter().map(|f| f.face_box).collect::<Vec<_>>());
+    let area = |f: &facerecon_client::Face| (f.face_box[2] - f.face_box[0]) * (f.face_box[3] - f.face_box[1]);
+    assert!(area(&r.faces[0]) >= area(&r.faces[1]));
+    assert!(r.faces.iter().all(|f| f.fit.is_ok()));
+    let r = c
+        .reconstruct(Request::new("one", png(&both)).with_options(pb::Options { max_faces: 1, ..Default::default() }))
+        .await
+        .unwrap();
+    assert_eq!(r.faces.len(), 1);
+    s.stop().await.unwrap();
+}
+
+/// A deadline shorter than the work: DEADLINE_EXCEEDED (not CANCELLED), then more calls.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn deadlines_are_honoured() {
+    let s = TestServer::start(Config::default()).await;
+    let short = Client::connect(&[s.url()], ConnectOptions { timeout: Some(Duration::from_millis(30)), ..options() })
+        .await
+        .unwrap();
+    let coarse = pb::Options { refine: pb::Refine::Coarse as i32, ..Default::default() };
+    assert_eq!(code(short.reconstruct(with(coarse, photo(0))).await), Code::DeadlineExceeded);
+    let c = client(&s).await;
+    assert_eq!(code(c.reconstruct(with(Default::default(), photo(0))).await), Code::Ok);
+    s.stop().await.unwrap();
+}
+
+/// The server's own answer to an expired deadline, without a client-side timer racing it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_server_answers_deadline_exceeded_itself() {
+    use facerecon_proto::v1::reconstructor_server::Reconstructor;
+    let pool = std::sync::Arc::new(rayon_pool());
+    let p = tokio::task::spawn_blocking(facerecon_tests::pipeline).await.unwrap();
+    let engine = facerecon_server::engine::Engine::start(
+        p,
+        pool,
+        facerecon_server::engine::EngineSettings { max_batch_size: 4, max_queue_delay: None, queue_capacity: 4 },
+    );
+    let state = facerecon_server::service::State {
+        engine: std::sync::OnceLock::from(engine),
+        model_info: std::sync::OnceLock::new(),
+        max_faces: 16,
+    };
+    let svc = facerecon_server::service::Service { state: std::sync::Arc::new(state) };
+    let msg = pb::ReconstructRequest {
+        id: "late".into(),
+        image: photo(0),
+        options: Some(pb::Options { refine: pb::Refine::Coarse as i32, ..Default::default() }),
+    };
+    let mut req = tonic::Request::new(msg);
+    req.metadata_mut().insert("grpc-timeout", "50m".parse().unwrap());
+    let t = std::time::Instant::now();
+    let e = svc.reconstruct(req).await.unwrap_err();
+    assert_eq!(e.code(), Code::DeadlineExceeded, "{e:?}");
+    assert!(t.elapsed() < Duration::from_millis(500), "{:?}", t.elapsed());
+}
+
+fn rayon_pool() -> facerecon_server::engine::CpuPool {
+    facerecon_server::engine::cpu_pool(2).unwrap()
+}
+
+/// 100 photos over one stream, every fifth one bad: every id answered once, bad ones with
+/// their own error, good ones with their face.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stream_of_100_mixed_photos() {
+    let s = TestServer::start(Config::default()).await;
+    let c = client(&s).await;
+    let good: Vec<Vec<u8>> = (0..4).map(photo).collect();
+    let requests: Vec<Request> = (0..100)
+        .map(|k| {
+            let bytes = if k % 5 == 4 { format!("bad {k}").into_bytes() } else { good[k % 4].clone() };
+            Request::new(k.to_string(), bytes)
+        })
+        .collect();
+    let stream = c.reconstruct_stream(tokio_stream::iter(requests), 8).await.unwrap();
+    let answers: Vec<_> = stream.collect().await;
+    assert_eq!(answers.len(), 100);
+    let mut seen = vec![false; 100];
+    for a in answers {
+        let (id, r) = a.expect("no stream-level error");
+        let k: usize = id.parse().unwrap();
+        assert!(!std::mem::replace(&mut seen[k], true), "id {k} answered twice");
+        if k % 5 == 4 {
+            assert_eq!(code(r), Code::InvalidArgument, "item {k}");
+        } else {
+            let r = r.unwrap_or_else(|e| panic!("item {k}: {e}"));
+            assert_eq!(r.faces.len(), 1, "item {k}");
+        }
+    }
+    s.stop().await.unwrap();
+}
+
+/// A client that walks away mid-stream does not stop the server.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_client_cancelling_mid_stream() {
+    let s = TestServer::start(Config::default()).await;
+    let c = client(&s).await;
+    let bytes = photo(0);
+    let coarse = pb::Options { refine: pb::Refine::Coarse as i32, ..Default::default() };
+    let requests: Vec<Request> =
+        (0..20).map(|k| Request::new(k.to_string(), bytes.clone()).with_options(coarse.clone())).collect();
+    let mut stream = Box::pin(c.reconstruct_stream(tokio_stream::iter(requests), 4).await.unwrap());
+    let first = stream.next().await.unwrap().unwrap();
+    assert!(first.1.is_ok());
+    drop(stream);
+    // The remaining work is dropped: a new call is answered well before 19 coarse fits
+    // (about a second each) could have run.
+    let t = std::time::Instant::now();
+    let r = c.reconstruct(Request::new("after", bytes)).await.unwrap();
+    assert_eq!(r.faces.len(), 1);
+    assert!(t.elapsed() < Duration::from_secs(8), "{:?}", t.elapsed());
+    s.stop().await.unwrap();
+}
+
+/// A burst beyond the queue: unary calls refused at once with RESOURCE_EXHAUSTED, the
+/// admitted ones answered, a stream waits instead of failing, and the server recovers.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_burst_that_fills_the_queue() {
+    let s = TestServer::start(Config { queue_capacity: 2, ..Config::default() }).await;
+    let c = client(&s).await;
+    let bytes = photo(0);
+    let coarse = pb::Options { refine: pb::Refine::Coarse as i32, ..Default::default() };
+    let calls: Vec<_> = (0..10)
+        .map(|k| {
+            let c = c.clone();
+            let r = Request::new(k.to_string(), bytes.clone()).with_options(coarse.clone());
+            tokio::spawn(async move {
+                let t = std::time::Instant::now();
+                (code(c.reconstruct(r).await), t.elapsed())
+            })
+        })
+        .collect();
+    let mut codes = Vec::new();
+    for h in calls {
+        codes.push(h.await.unwrap());
+    }
+    let ok = codes.iter().filter(|(c, _)| *c == Code::Ok).count();
+    let refused: Vec<_> = codes.iter().filter(|(c, _)| *c == Code::ResourceExhausted).collect();
+    assert!(ok >= 2, "{codes:?}");
+    assert!(!refused.is_empty(), "{codes:?}");
+    assert_eq!(ok + refused.len(), 10, "{codes:?}");
+    assert!(refused.iter().all(|(_, t)| *t < Duration::from_millis(500)), "refused at once: {codes:?}");
+    // A stream of 6 through a queue of 2: back-pressure, no refusals.
+    let requests: Vec<Request> = (0..6).map(|k| Request::new(k.to_string(), bytes.clone())).collect();
+    let answers: Vec<_> = c.reconstruct_stream(tokio_stream::iter(requests), 6).await.unwrap().collect().await;
+    assert_eq!(answers.len(), 6);
+    assert!(answers.into_iter().all(|a| a.unwrap().1.is_ok()));
+    s.stop().await.unwrap();
+}
+
+/// Health says NOT_SERVING and calls UNAVAILABLE until the model is loaded.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn not_serving_until_loaded() {
+    let (release, wait) = std::sync::mpsc::channel::<()>();
+    let p = tokio::task::spawn_blocking(facerecon_tests::pipeline).await.unwrap();
+    let load: facerecon_server::Loader = Box::new(move || {
+        let _ = wait.recv();
+        Ok(p)
+    });
+    let s = TestServer::start_with(Config::default(), load).await;
+    use tonic_health::pb::health_check_response::ServingStatus;
+    assert_eq!(s.health("").await, Some(ServingStatus::NotServing));
+    assert_eq!(s.health(facerecon_server::SERVICE_NAME).await, Some(ServingStatus::NotServing));
+    let c = client(&s).await;
+    assert_eq!(code(c.reconstruct(Request::new("early", photo(0))).await), Code::Unavailable);
+    release.send(()).unwrap();
+    s.wait_serving(Duration::from_secs(10)).await;
+    assert_eq!(s.health(facerecon_server::SERVICE_NAME).await, Some(ServingStatus::Serving));
+    assert_eq!(code(c.reconstruct(Request::new("later", photo(0))).await), Code::Ok);
+    s.stop().await.unwrap();
+}
+
+/// A failed load ends the server with the loader's error.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_failed_load_ends_the_server() {
+    let s = TestServer::start_with(Config::default(), Box::new(|| anyhow::bail!("no such model file"))).await;
+    let e = tokio::time::timeout(Duration::from_secs(10), s.finished()).await.unwrap().unwrap_err();
+    assert!(format!("{e:#}").contains("no such model file"), "{e:#}");
+}
+
+/// With a token configured, reconstruction needs it; health stays open for probes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bearer_token() {
+    let s = TestServer::start(Config { auth_token: Some("s3cret".into()), ..Config::default() }).await;
+    let none = client(&s).await;
+    assert_eq!(code(none.reconstruct(Request::new("x", photo(0))).await), Code::Unauthenticated);
+    let wrong = Client::connect(&[s.url()], ConnectOptions { token: Some("nope".into()), ..options() }).await.unwrap();
+    assert_eq!(code(wrong.reconstruct(Request::new("x", photo(0))).await), Code::Unauthenticated);
+    let right =
+        Client::connect(&[s.url()], ConnectOptions { token: Some("s3cret".into()), ..options() }).await.unwrap();
+    assert_eq!(code(right.reconstruct(Request::new("x", photo(0))).await), Code::Ok);
+    s.stop().await.unwrap();
+}
+
+/// TLS with a self-signed certificate the client is given as its root.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn tls() {
+    let dir = std::env::temp_dir().join(format!("facerecon-tls-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let cert = rcgen::generate_simple_self_signed(vec!["localhost".to_string()]).unwrap();
+    let (cert_pem, key_pem) = (cert.cert.pem(), cert.signing_key.serialize_pem());
+    std::fs::write(dir.join("cert.pem"), &cert_pem).unwrap();
+    std::fs::write(dir.join("key.pem"), &key_pem).unwrap();
+    let s = TestServer::start_with(
+        Config { tls_cert: Some(dir.join("cert.pem")), tls_key: Some(dir.join("key.pem")), ..Config::default() },
+        {
+            let p = tokio::task::spawn_blocking(facerecon_tests::pipeline).await.unwrap();
+            Box::new(move || Ok(p))
+        },
+    )
+    .await;
+    let url = format!("https://localhost:{}", s.addr.port());
+    let c = Client::connect(&[url.as_str()], ConnectOptions { ca_pem: Some(cert_pem.into_bytes()), ..options() })
+        .await
+        .unwrap();
+    let mut answered = false;
+    for _ in 0..100 {
+        match c.reconstruct(Request::new("tls", photo(0))).await {
+            Ok(r) => {
+                assert_eq!(r.faces.len(), 1);
+                answered = true;
+                break;
+            }
+            Err(e) if e.code() == Some(Code::Unavailable) => tokio::time::sleep(Duration::from_millis(100)).await,
+            Err(e) => panic!("{e}"),
+        }
+    }
+    assert!(answered);
+    // A plain-text client gets no answer from a TLS server.
+    let plain = Client::connect(&[format!("http://127.0.0.1:{}", s.addr.port())], options()).await.unwrap();
+    assert!(plain.reconstruct(Request::new("plain", photo(0))).await.is_err());
+    s.stop().await.unwrap();
+}
