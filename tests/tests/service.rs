@@ -344,7 +344,7 @@ async fn a_stream_of_100_mixed_photos() {
     let stream = c.reconstruct_stream(tokio_stream::iter(requests), 8).await.unwrap();
     let answers: Vec<_> = stream.collect().await;
     assert_eq!(answers.len(), 100);
-    let mut seen = vec![false; 100];
+    let mut seen = [false; 100];
     for a in answers {
         let (id, r) = a.expect("no stream-level error");
         let k: usize = id.parse().unwrap();
