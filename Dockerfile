@@ -1,12 +1,14 @@
-# facerecon container image: the `facerecon` command with everything it needs at run time,
-# rendering on CPU through Mesa's lavapipe (no GPU required).
+# facerecon container image: `facerecon-server` (the gRPC service) and the `facerecon`
+# command. Runs CPU-only (Mesa's lavapipe for Vulkan) and on an NVIDIA GPU through the
+# NVIDIA container toolkit (`--gpus all`: the toolkit mounts the driver's Vulkan ICD).
 #
 #   docker build -t facerecon .
-#   docker run --rm -v "$PWD/out:/out" facerecon synth --count 8 -o /out
+#   docker run --rm -p 50051:50051 -p 9464:9464 -v "$PWD/models:/models:ro" facerecon
 #
-# The face model is built from an ICT-FaceKit folder at run time or mounted:
-#   docker run --rm -v /path/to/ICT-FaceKit:/ict -v "$PWD/models:/models" facerecon \
-#     model import-ict --source /ict -o /models/ict-face-light.safetensors
+# The face model is mounted, not baked in: `scripts/setup` builds
+# models/ict-face-light.safetensors from ICT-FaceKit; FACERECON_MODEL names it. The face
+# detector (opencv-data) and the 68-point landmark model (libdlib-data) come from Debian.
+# scripts/docker-check builds this image, serves a request from it and stops it.
 
 FROM rust:1.95-bookworm AS build
 # libjpeg-turbo's TurboJPEG library: JPEG decoding (facerecon-vision links it via pkg-config).
@@ -15,14 +17,23 @@ RUN apt-get update \
  && rm -rf /var/lib/apt/lists/*
 WORKDIR /src
 COPY . .
-RUN cargo build --release --locked -p facerecon-client \
- && strip target/release/facerecon
+RUN cargo build --release --locked -p facerecon-server -p facerecon-client \
+ && strip target/release/facerecon-server target/release/facerecon
 
 FROM debian:bookworm-slim
 RUN apt-get update \
  && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
       mesa-vulkan-drivers libvulkan1 opencv-data libdlib-data libturbojpeg0 ca-certificates \
- && rm -rf /var/lib/apt/lists/*
-COPY --from=build /src/target/release/facerecon /usr/local/bin/facerecon
-ENV XDG_RUNTIME_DIR=/tmp WGPU_BACKEND=vulkan
-ENTRYPOINT ["facerecon"]
+ && rm -rf /var/lib/apt/lists/* \
+ && useradd --system --uid 10001 --no-create-home facerecon
+COPY --from=build /src/target/release/facerecon-server /src/target/release/facerecon /usr/local/bin/
+ENV FACERECON_LISTEN=0.0.0.0:50051 \
+    FACERECON_METRICS_LISTEN=0.0.0.0:9464 \
+    FACERECON_MODEL=/models/ict-face-light.safetensors \
+    FACERECON_LOG_FORMAT=json \
+    XDG_RUNTIME_DIR=/tmp \
+    WGPU_BACKEND=vulkan \
+    NVIDIA_DRIVER_CAPABILITIES=compute,utility,graphics
+USER 10001
+EXPOSE 50051 9464
+ENTRYPOINT ["facerecon-server"]

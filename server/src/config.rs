@@ -216,6 +216,13 @@ mod tests {
         assert_eq!(c.queue_capacity, Config::default().queue_capacity);
     }
 
+    /// The commented example file says the defaults.
+    #[test]
+    fn the_example_file_is_the_defaults() {
+        let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/facerecon.toml");
+        assert_eq!(Config::from_file(&file).unwrap(), Config::default());
+    }
+
     #[test]
     fn rejects_unknown_keys_and_bad_values() {
         let dir = std::env::temp_dir().join(format!("facerecon-config-bad-{}", std::process::id()));
