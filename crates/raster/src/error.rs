@@ -19,3 +19,30 @@ pub enum RenderError {
     #[error("invalid argument: {0}")]
     InvalidArgument(String),
 }
+
+impl RenderError {
+    /// Whose fault (see [`facerecon_model::ErrorKind`]): a bad job or argument is the
+    /// caller's; a missing adapter, a device or GPU failure is the system's.
+    pub fn kind(&self) -> facerecon_model::ErrorKind {
+        use facerecon_model::ErrorKind;
+        match self {
+            RenderError::InvalidJob { .. } | RenderError::SizeMismatch(_) | RenderError::InvalidArgument(_) => {
+                ErrorKind::Input
+            }
+            RenderError::NoAdapter(_) | RenderError::Device(_) | RenderError::Gpu(_) => ErrorKind::Internal,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use facerecon_model::ErrorKind;
+
+    #[test]
+    fn kinds() {
+        assert_eq!(RenderError::InvalidArgument("x".into()).kind(), ErrorKind::Input);
+        assert_eq!(RenderError::InvalidJob { job: 0, message: "x".into() }.kind(), ErrorKind::Input);
+        assert_eq!(RenderError::NoAdapter("x".into()).kind(), ErrorKind::Internal);
+    }
+}

@@ -53,6 +53,17 @@ pub enum SynthError {
 }
 
 impl SynthError {
+    /// Whose fault (see [`facerecon_model::ErrorKind`]): bad settings are the caller's,
+    /// a file that cannot be written or a failed render the system's (or its disk's).
+    pub fn kind(&self) -> facerecon_model::ErrorKind {
+        use facerecon_model::ErrorKind;
+        match self {
+            SynthError::Config(_) => ErrorKind::Input,
+            SynthError::Render(e) => e.kind(),
+            SynthError::Model(_) | SynthError::Io { .. } | SynthError::Image { .. } => ErrorKind::Internal,
+        }
+    }
+
     pub(crate) fn model(e: impl std::error::Error + Send + Sync + 'static) -> Self {
         SynthError::Model(Box::new(e))
     }
