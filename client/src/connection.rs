@@ -60,7 +60,8 @@ pub struct ConnectOptions {
     pub connect_timeout: Duration,
     /// Largest message sent or received (meshes and pictures exceed tonic's 4 MiB).
     pub max_message_bytes: usize,
-    /// Retries of a unary call answered UNAVAILABLE (server starting, pod gone, restart).
+    /// Retries of a unary call answered UNAVAILABLE or cut off by the transport (server
+    /// starting, pod gone, restart).
     pub retries: u32,
     /// First retry delay; doubled each retry, with jitter.
     pub backoff: Duration,
@@ -116,6 +117,13 @@ fn local_deadline(s: tonic::Status) -> tonic::Status {
     } else {
         s
     }
+}
+
+/// UNAVAILABLE, and a connection broken before any answer (tonic reports that as UNKNOWN
+/// "transport error": e.g. a container's port proxy accepting before the server listens).
+fn retriable(s: &tonic::Status) -> bool {
+    s.code() == tonic::Code::Unavailable
+        || (s.code() == tonic::Code::Unknown && s.message().contains("transport error"))
 }
 
 #[derive(Clone)]
@@ -267,7 +275,7 @@ impl Client {
         r
     }
 
-    /// Retries `call` on UNAVAILABLE with exponential backoff and jitter.
+    /// Retries `call` on UNAVAILABLE or a broken connection, with exponential backoff and jitter.
     async fn with_retries<T, F, Fut>(&self, mut call: F) -> Result<T, ClientError>
     where
         F: FnMut() -> Fut,
@@ -277,7 +285,7 @@ impl Client {
         loop {
             match call().await {
                 Ok(v) => return Ok(v),
-                Err(s) if s.code() == tonic::Code::Unavailable && attempt < self.options.retries => {
+                Err(s) if retriable(&s) && attempt < self.options.retries => {
                     let base = self.options.backoff.saturating_mul(1 << attempt.min(10));
                     // Jitter from the clock's low bits: spreads many clients' retries apart.
                     let nanos = std::time::SystemTime::now()
