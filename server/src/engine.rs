@@ -8,8 +8,9 @@
 //!   either everything else already queued ("greedy", `max_queue_delay_ms = 0`) or what
 //!   arrives within the delay, up to `max_batch_size`; drops faces whose caller went away
 //!   or whose deadline passed; and hands the batch, each face with its resolution bucket,
-//!   to the backend (the fit, in parallel over the batch on the CPU pool). Only one batch
-//!   is in the backend at a time, so batches form while it works.
+//!   to the backend (the fit, in parallel over the batch on the backend's own threads, so
+//!   that it never waits behind queued decode jobs). Only one batch is in the backend at a
+//!   time, so batches form while it works.
 //! * **per photo, on the CPU pool**: the outputs (meshes, pictures).
 //!
 //! Work whose caller went away is dropped before it starts: every stage's result goes to a
@@ -76,6 +77,8 @@ pub struct Engine {
     pipeline: Arc<Pipeline>,
     pool: Arc<rayon::ThreadPool>,
     admission: Arc<Semaphore>,
+    /// One per CPU-pool thread (see [`Engine::cpu`]).
+    cpu_slots: Semaphore,
     faces: mpsc::UnboundedSender<FaceJob>,
     settings: EngineSettings,
 }
@@ -92,19 +95,34 @@ impl Drop for Admitted {
 }
 
 impl Engine {
-    /// Starts the batcher task (on the current tokio runtime).
-    pub fn start(pipeline: Arc<Pipeline>, pool: Arc<rayon::ThreadPool>, settings: EngineSettings) -> Arc<Engine> {
+    /// Starts the batcher task (on the current tokio runtime) and the backend's threads.
+    pub fn start(
+        pipeline: Arc<Pipeline>,
+        pool: Arc<rayon::ThreadPool>,
+        settings: EngineSettings,
+    ) -> Result<Arc<Engine>, rayon::ThreadPoolBuildError> {
         let (tx, rx) = mpsc::unbounded_channel();
         // The face queue is bounded by admission: at most queue_capacity photos of at most
         // max_faces faces each are in the system.
-        tokio::spawn(batcher(rx, pipeline.clone(), pool.clone(), settings));
-        Arc::new(Engine {
+        // The backend has threads of its own: on the shared pool, a batch's `par_iter` would
+        // steal queued decode jobs (tens of ms each) while its callers wait, which tripled
+        // p99 at concurrency 32 (docs/BENCHMARKS.md, "Service").
+        let threads = pool.current_num_threads();
+        let backend = Arc::new(
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .thread_name(|i| format!("facerecon-fit-{i}"))
+                .build()?,
+        );
+        tokio::spawn(batcher(rx, pipeline.clone(), backend, settings));
+        Ok(Arc::new(Engine {
             pipeline,
             pool,
             admission: Arc::new(Semaphore::new(settings.queue_capacity)),
+            cpu_slots: Semaphore::new(threads),
             faces: tx,
             settings,
-        })
+        }))
     }
 
     pub fn pipeline(&self) -> &Arc<Pipeline> {
@@ -144,12 +162,13 @@ impl Engine {
         let pipeline = self.pipeline.clone();
         let opts = options.clone();
         let t = Instant::now();
-        let found = on_pool(&self.pool, move || {
-            let image = pipeline.decode(&image)?;
-            let faces = pipeline.find_faces(&image, &opts)?;
-            Ok::<_, facerecon_recon::ReconError>((image, faces))
-        })
-        .await?;
+        let found = self
+            .cpu(move || {
+                let image = pipeline.decode(&image)?;
+                let faces = pipeline.find_faces(&image, &opts)?;
+                Ok::<_, facerecon_recon::ReconError>((image, faces))
+            })
+            .await?;
         let (image, faces) = found.map_err(|e| convert::recon_status(&e))?;
         let decode_detect_s = t.elapsed().as_secs_f64();
         metrics::histogram!(m::STAGE_SECONDS, "stage" => "decode_detect").record(decode_detect_s);
@@ -182,7 +201,7 @@ impl Engine {
         let t = Instant::now();
         let recon = Reconstruction { image: Arc::unwrap_or_clone(image), faces: recons };
         let pipeline = self.pipeline.clone();
-        let mut response = on_pool(&self.pool, move || convert::response(pipeline.model(), &recon, &wanted)).await??;
+        let mut response = self.cpu(move || convert::response(pipeline.model(), &recon, &wanted)).await??;
         let outputs_s = t.elapsed().as_secs_f64();
         metrics::histogram!(m::STAGE_SECONDS, "stage" => "outputs").record(outputs_s);
         response.id = id;
@@ -193,6 +212,17 @@ impl Engine {
             outputs_s,
         });
         Ok(response)
+    }
+}
+
+impl Engine {
+    /// Runs `f` on the CPU pool once one of its threads is free. Waiting here, in tokio's
+    /// fair (FIFO) semaphore, instead of in rayon's queue keeps photos in arrival order:
+    /// rayon runs queued jobs in no fixed order (a thread waiting inside a `par_iter` steals
+    /// whatever is queued), which let some photos wait seconds at concurrency 32.
+    async fn cpu<T: Send + 'static>(&self, f: impl FnOnce() -> T + Send + 'static) -> Result<T, Status> {
+        let _slot = self.cpu_slots.acquire().await.map_err(|_| Status::unavailable("the server is shutting down"))?;
+        on_pool(&self.pool, f).await
     }
 }
 

@@ -109,8 +109,15 @@ pub async fn serve(
             let t = Instant::now();
             match tokio::task::spawn_blocking(load).await {
                 Ok(Ok(pipeline)) => {
+                    let engine = match Engine::start(pipeline.clone(), pool, settings) {
+                        Ok(e) => e,
+                        Err(e) => {
+                            let _ = failed_tx.send(anyhow::anyhow!("starting the backend threads: {e}"));
+                            return;
+                        }
+                    };
                     let _ = state.model_info.set(convert::model_info(pipeline.model()));
-                    let _ = state.engine.set(Engine::start(pipeline, pool, settings));
+                    let _ = state.engine.set(engine);
                     reporter.set_service_status("", ServingStatus::Serving).await;
                     reporter.set_service_status(SERVICE_NAME, ServingStatus::Serving).await;
                     tracing::info!(seconds = t.elapsed().as_secs_f64(), threads, "model loaded; serving");

@@ -304,7 +304,8 @@ async fn the_server_answers_deadline_exceeded_itself() {
         p,
         pool,
         facerecon_server::engine::EngineSettings { max_batch_size: 4, max_queue_delay: None, queue_capacity: 4 },
-    );
+    )
+    .unwrap();
     let state = facerecon_server::service::State {
         engine: std::sync::OnceLock::from(engine),
         model_info: std::sync::OnceLock::new(),
