@@ -86,6 +86,28 @@ fn record(rpc: &'static str, start: Instant, code: Code) {
     metrics::counter!(m::REQUESTS, "rpc" => rpc, "code" => code).increment(1);
 }
 
+/// One call's metrics, recorded once: with its status, or as CANCELLED when dropped unfinished.
+struct Call {
+    rpc: &'static str,
+    start: Instant,
+    done: bool,
+}
+
+impl Call {
+    fn finish(&mut self, code: Code) {
+        self.done = true;
+        record(self.rpc, self.start, code);
+    }
+}
+
+impl Drop for Call {
+    fn drop(&mut self) {
+        if !self.done {
+            record(self.rpc, self.start, Code::Cancelled);
+        }
+    }
+}
+
 fn deadline_exceeded() -> Status {
     Status::deadline_exceeded("deadline exceeded before the reconstruction finished")
 }
@@ -131,9 +153,10 @@ impl pb::reconstructor_server::Reconstructor for Service {
         req: Request<pb::ReconstructRequest>,
     ) -> Result<Response<pb::ReconstructResponse>, Status> {
         let _f = InFlight::new();
-        let start = Instant::now();
+        // Records CANCELLED if the caller goes away first (tonic then drops this future).
+        let mut call = Call { rpc: "Reconstruct", start: Instant::now(), done: false };
         let r = self.reconstruct_one(req).await;
-        record("Reconstruct", start, r.as_ref().err().map_or(Code::Ok, |s| s.code()));
+        call.finish(r.as_ref().err().map_or(Code::Ok, |s| s.code()));
         r.map(Response::new)
     }
 
