@@ -104,9 +104,8 @@ impl Engine {
         let (tx, rx) = mpsc::unbounded_channel();
         // The face queue is bounded by admission: at most queue_capacity photos of at most
         // max_faces faces each are in the system.
-        // The backend has threads of its own: on the shared pool, a batch's `par_iter` would
-        // steal queued decode jobs (tens of ms each) while its callers wait, which tripled
-        // p99 at concurrency 32 (docs/BENCHMARKS.md, "Service").
+        // The backend has threads of its own, so that a batch never waits behind decode jobs
+        // (on the shared pool, a batch's `par_iter` can steal them, tens of ms each).
         let threads = pool.current_num_threads();
         let backend = Arc::new(
             rayon::ThreadPoolBuilder::new()
