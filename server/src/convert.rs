@@ -124,9 +124,7 @@ fn refine(r: Refine) -> pb::Refine {
 }
 
 fn png(image: &image::RgbImage) -> Result<Vec<u8>, Status> {
-    let mut out = std::io::Cursor::new(Vec::new());
-    image.write_to(&mut out, image::ImageFormat::Png).map_err(|e| internal("encoding a PNG", e))?;
-    Ok(out.into_inner())
+    outputs::png(image).map_err(|e| internal("encoding a PNG", e))
 }
 
 /// The response for a reconstruction (id and timing are the caller's to set).

@@ -156,7 +156,5 @@ pub fn png_header_claiming(width: u32, height: u32) -> Vec<u8> {
 }
 
 pub fn png(img: &image::RgbImage) -> Vec<u8> {
-    let mut out = std::io::Cursor::new(Vec::new());
-    img.write_to(&mut out, image::ImageFormat::Png).expect("encoding a PNG");
-    out.into_inner()
+    facerecon_recon::outputs::png(img).expect("encoding a PNG")
 }

@@ -38,7 +38,5 @@ pub fn write_picture(dir: &Path, stem: &str, kind: &str, png: &[u8]) -> anyhow::
 }
 
 pub fn png(image: &image::RgbImage) -> anyhow::Result<Vec<u8>> {
-    let mut out = std::io::Cursor::new(Vec::new());
-    image.write_to(&mut out, image::ImageFormat::Png)?;
-    Ok(out.into_inner())
+    Ok(facerecon_recon::outputs::png(image)?)
 }

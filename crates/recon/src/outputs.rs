@@ -100,6 +100,14 @@ pub fn face_record(model: &MorphableModel, face: &FaceRecon) -> Option<FaceRecor
     })
 }
 
+/// A picture as PNG bytes, the one encoding of every picture the pipeline hands out
+/// (`facerecon fit` writes these bytes, the service sends them).
+pub fn png(image: &RgbImage) -> Result<Vec<u8>, image::ImageError> {
+    let mut out = std::io::Cursor::new(Vec::new());
+    image.write_to(&mut out, image::ImageFormat::Png)?;
+    Ok(out.into_inner())
+}
+
 /// Largest side of a face's crop rendering for the overlay, pixels.
 const MAX_RENDER_SIDE: u32 = 1024;
 /// The overlay renders this many crop sides around the crop's centre.
