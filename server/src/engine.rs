@@ -156,12 +156,10 @@ impl Engine {
     /// Reconstructs one admitted photo. Deadlines are the caller's to enforce around this
     /// future (dropping it cancels the remaining work); stages also check it.
     pub async fn run(&self, job: Job, _admitted: &Admitted) -> Result<pb::ReconstructResponse, Status> {
-        let received = Instant::now();
         let Job { id, image, options, wanted, deadline } = job;
         let pipeline = self.pipeline.clone();
         let opts = options.clone();
-        let t = Instant::now();
-        let found = self
+        let (found, waited, decode_detect_s) = self
             .cpu(move || {
                 let image = pipeline.decode(&image)?;
                 let faces = pipeline.find_faces(&image, &opts)?;
@@ -169,7 +167,7 @@ impl Engine {
             })
             .await?;
         let (image, faces) = found.map_err(|e| convert::recon_status(&e))?;
-        let decode_detect_s = t.elapsed().as_secs_f64();
+        let mut queue_s = waited;
         metrics::histogram!(m::STAGE_SECONDS, "stage" => "decode_detect").record(decode_detect_s);
         metrics::histogram!(m::FACES_PER_IMAGE).record(faces.len() as f64);
         check_deadline(deadline)?;
@@ -192,24 +190,24 @@ impl Engine {
         }
         let mut recons = Vec::with_capacity(replies.len());
         for rx in replies {
-            // A face dropped by the batcher (deadline) closes its channel.
-            recons.push(rx.await.map_err(|_| deadline_status(deadline))?);
+            // The batcher drops a face whose deadline passed, and a failed (panicked) batch
+            // drops its senders: either closes the channel.
+            recons.push(rx.await.map_err(|_| match deadline.is_some_and(|d| Instant::now() >= d) {
+                true => deadline_exceeded(),
+                false => Status::internal("the fit of a face failed (a bug; it is logged)"),
+            })?);
         }
         let fit_s = t.elapsed().as_secs_f64();
 
-        let t = Instant::now();
         let recon = Reconstruction { image: Arc::unwrap_or_clone(image), faces: recons };
         let pipeline = self.pipeline.clone();
-        let mut response = self.cpu(move || convert::response(pipeline.model(), &recon, &wanted)).await??;
-        let outputs_s = t.elapsed().as_secs_f64();
+        let (response, waited, outputs_s) =
+            self.cpu(move || convert::response(pipeline.model(), &recon, &wanted)).await?;
+        let mut response = response?;
+        queue_s += waited;
         metrics::histogram!(m::STAGE_SECONDS, "stage" => "outputs").record(outputs_s);
         response.id = id;
-        response.timing = Some(pb::Timing {
-            queue_s: (received.elapsed().as_secs_f64() - decode_detect_s - fit_s - outputs_s).max(0.0),
-            decode_detect_s,
-            fit_s,
-            outputs_s,
-        });
+        response.timing = Some(pb::Timing { queue_s, decode_detect_s, fit_s, outputs_s });
         Ok(response)
     }
 }
@@ -219,25 +217,26 @@ impl Engine {
     /// fair (FIFO) semaphore, instead of in rayon's queue keeps photos in arrival order:
     /// rayon runs queued jobs in no fixed order (a thread waiting inside a `par_iter` steals
     /// whatever is queued), which let some photos wait seconds at concurrency 32.
-    async fn cpu<T: Send + 'static>(&self, f: impl FnOnce() -> T + Send + 'static) -> Result<T, Status> {
+    /// Returns `f`'s value, the seconds waited for a thread and the seconds `f` ran.
+    async fn cpu<T: Send + 'static>(&self, f: impl FnOnce() -> T + Send + 'static) -> Result<(T, f64, f64), Status> {
+        let t = Instant::now();
         let _slot = self.cpu_slots.acquire().await.map_err(|_| Status::unavailable("the server is shutting down"))?;
-        on_pool(&self.pool, f).await
+        let waited = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let v = on_pool(&self.pool, f).await?;
+        Ok((v, waited, t.elapsed().as_secs_f64()))
     }
 }
 
 fn check_deadline(deadline: Option<Instant>) -> Result<(), Status> {
     match deadline {
-        Some(d) if Instant::now() >= d => Err(deadline_status(deadline)),
+        Some(d) if Instant::now() >= d => Err(deadline_exceeded()),
         _ => Ok(()),
     }
 }
 
-fn deadline_status(deadline: Option<Instant>) -> Status {
-    if deadline.is_some_and(|d| Instant::now() >= d) {
-        Status::deadline_exceeded("deadline exceeded before the reconstruction finished")
-    } else {
-        Status::unavailable("the server is shutting down")
-    }
+pub fn deadline_exceeded() -> Status {
+    Status::deadline_exceeded("deadline exceeded before the reconstruction finished")
 }
 
 /// Runs `f` on the CPU pool unless the caller has gone away first. A panic in `f` is the

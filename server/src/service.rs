@@ -13,7 +13,7 @@ use tonic::{Code, Request, Response, Status, Streaming};
 use tracing::Instrument;
 
 use crate::convert;
-use crate::engine::{Engine, Job};
+use crate::engine::{Engine, Job, deadline_exceeded};
 use crate::metrics as m;
 use facerecon_proto::v1 as pb;
 
@@ -106,10 +106,6 @@ impl Drop for Call {
             record(self.rpc, self.start, Code::Cancelled);
         }
     }
-}
-
-fn deadline_exceeded() -> Status {
-    Status::deadline_exceeded("deadline exceeded before the reconstruction finished")
 }
 
 impl Service {

@@ -60,6 +60,8 @@ async fn a_photo_gets_coefficients_meshes_and_pictures() {
     let r = c.reconstruct(with(opts, bytes.clone()).clone()).await.unwrap();
     let img = image::load_from_memory(&bytes).unwrap();
     assert_eq!((r.width, r.height), (img.width(), img.height()));
+    let t = r.timing.unwrap();
+    assert!(t.decode_detect_s > 0.0 && t.fit_s > 0.0 && t.outputs_s > 0.0 && t.queue_s >= 0.0, "{t:?}");
     assert_eq!(r.faces.len(), 1);
     let face = &r.faces[0];
     assert_eq!(face.landmarks.len(), 68);
