@@ -3,19 +3,16 @@
 //! Needs the runtime library (scripts/install-onnxruntime). Run:
 //! `cargo bench -p facerecon-vision --bench onnx`
 
-#[path = "../tests/support/onnx_graph.rs"]
-mod onnx_graph;
-
 use std::hint::black_box;
 use std::time::Instant;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use facerecon_vision::face::{Detection, FaceBox, FaceDetector, LandmarkPredictor};
+use facerecon_vision::onnx::graph::*;
 use facerecon_vision::onnx::{
     OnnxDetector, OnnxDetectorConfig, OnnxLandmarker, OnnxLandmarkerConfig, OnnxRuntimeConfig, onnx_runtime,
 };
 use image::{Rgb, RgbImage};
-use onnx_graph::*;
 use ort::session::Session;
 use ort::value::Tensor;
 
@@ -28,7 +25,8 @@ fn identity() -> Vec<u8> {
         outputs: vec![value("y", FLOAT, &dims)],
         initializers: vec![],
     }
-    .to_model(13)
+    .to_model(13, "facerecon-bench")
+    .unwrap()
 }
 
 /// Constant boxes, scores from the input mean, 64×64 input (as in tests/onnx_models.rs).
@@ -48,7 +46,8 @@ fn detector() -> Vec<u8> {
             init_f32("b", &[2], &[0.5, 0.9]),
         ],
     }
-    .to_model(13)
+    .to_model(13, "facerecon-bench")
+    .unwrap()
 }
 
 /// Scores from the input mean, 640×640 input: the cost of filling a detector-sized input.
@@ -63,7 +62,8 @@ fn detector_640() -> Vec<u8> {
         outputs: vec![value("boxes", FLOAT, &[Named("N"), Fixed(4)]), value("scores", FLOAT, &[Named("N")])],
         initializers: vec![init_f32("box_const", &[1, 4], &[100.0, 100.0, 300.0, 300.0]), init_f32("w", &[1], &[2.0])],
     }
-    .to_model(13)
+    .to_model(13, "facerecon-bench")
+    .unwrap()
 }
 
 /// 68 points from the crop mean, [1, 68, 2], over a 112² crop.
@@ -77,7 +77,8 @@ fn landmarker() -> Vec<u8> {
         outputs: vec![value("landmarks", FLOAT, &[Fixed(1), Fixed(68), Fixed(2)])],
         initializers: vec![init_f32("w", &[1, 68, 2], &[0.5; 136])],
     }
-    .to_model(13)
+    .to_model(13, "facerecon-bench")
+    .unwrap()
 }
 
 fn bench(c: &mut Criterion) {

@@ -64,6 +64,7 @@
 mod config;
 mod detector;
 mod error;
+pub mod graph;
 mod landmarker;
 mod resample;
 mod runtime;
@@ -77,6 +78,6 @@ pub use detector::OnnxDetector;
 pub use error::{INSTALL_HINT, OnnxError};
 pub use landmarker::{OnnxLandmarker, POINTS};
 pub use runtime::{
-    LibrarySource, RuntimeLibrary, default_install_path, onnx_runtime, resolve_runtime_library,
-    resolve_runtime_library_from,
+    LibrarySource, ModelSource, RuntimeLibrary, default_install_path, load_session, onnx_runtime,
+    resolve_runtime_library, resolve_runtime_library_from,
 };

@@ -2,17 +2,15 @@
 //! outputs worked out by hand from the contract (crates/vision/src/onnx.rs). Needs the
 //! ONNX Runtime library: see tests/support/ort_env.rs.
 
-#[path = "support/onnx_graph.rs"]
-mod onnx_graph;
 #[path = "support/ort_env.rs"]
 mod ort_env;
 
 use facerecon_vision::face::{Detection, FaceBox, FaceDetector, LandmarkPredictor};
+use facerecon_vision::onnx::graph::*;
 use facerecon_vision::onnx::{
     BoxUnits, OnnxDetector, OnnxDetectorConfig, OnnxError, OnnxLandmarker, OnnxLandmarkerConfig, PointUnits, ResizeMode,
 };
 use image::{Rgb, RgbImage};
-use onnx_graph::*;
 
 const OPSET: i64 = 13;
 
@@ -148,11 +146,11 @@ fn dot_landmarker(side: i64, pixels: bool, conf: f32) -> Graph {
 // ---------------------------------------------------------------- helpers
 
 fn detector(graph: &Graph, config: OnnxDetectorConfig) -> Result<OnnxDetector, OnnxError> {
-    OnnxDetector::from_bytes(config, &graph.to_model(OPSET), "test-detector")
+    OnnxDetector::from_bytes(config, &graph.to_model(OPSET, "facerecon-tests").unwrap(), "test-detector")
 }
 
 fn landmarker(graph: &Graph, config: OnnxLandmarkerConfig) -> Result<OnnxLandmarker, OnnxError> {
-    OnnxLandmarker::from_bytes(config, &graph.to_model(OPSET), "test-landmarker")
+    OnnxLandmarker::from_bytes(config, &graph.to_model(OPSET, "facerecon-tests").unwrap(), "test-landmarker")
 }
 
 fn det_config() -> OnnxDetectorConfig {
@@ -374,7 +372,7 @@ fn garbage_and_missing_model_files_are_clear_errors() {
     assert!(matches!(e, OnnxError::ModelLoad { .. }), "{e}");
     std::fs::remove_file(&garbage).ok();
     // Truncated real model.
-    let model = const_detector().to_model(OPSET);
+    let model = const_detector().to_model(OPSET, "facerecon-tests").unwrap();
     let e = OnnxDetector::from_bytes(det_config(), &model[..model.len() / 2], "half").unwrap_err();
     assert!(matches!(e, OnnxError::ModelLoad { .. }), "{e}");
 
@@ -391,7 +389,7 @@ fn detector_from_a_config_file() {
     require_ort!();
     let dir = ort_env::temp_path("config-dir");
     std::fs::create_dir_all(&dir).unwrap();
-    std::fs::write(dir.join("det.onnx"), const_detector().to_model(OPSET)).unwrap();
+    std::fs::write(dir.join("det.onnx"), const_detector().to_model(OPSET, "facerecon-tests").unwrap()).unwrap();
     let file = dir.join("detector.json");
     std::fs::write(
         &file,

@@ -119,17 +119,13 @@ pub fn onnx_runtime(config: &OnnxRuntimeConfig) -> Result<Environment, OnnxError
 const MAX_MODEL_BYTES: u64 = 2 << 30;
 
 /// Where a model comes from.
-pub(crate) enum ModelSource<'a> {
+pub enum ModelSource<'a> {
     File(&'a Path),
     Bytes(&'a [u8]),
 }
 
 /// A session for `source` under `config`'s runtime. `label` names the model in errors.
-pub(crate) fn load_session(
-    config: &OnnxRuntimeConfig,
-    source: ModelSource<'_>,
-    label: &str,
-) -> Result<Session, OnnxError> {
+pub fn load_session(config: &OnnxRuntimeConfig, source: ModelSource<'_>, label: &str) -> Result<Session, OnnxError> {
     // Check the file before loading the runtime, so a wrong path reads as such.
     if let ModelSource::File(path) = source {
         let meta = std::fs::metadata(path).map_err(|e| OnnxError::ModelRead { path: path.to_path_buf(), source: e })?;

@@ -1,8 +1,8 @@
-//! A minimal ONNX model writer for tests and benches: the few `onnx.proto` messages a small
-//! graph needs (ModelProto, GraphProto, NodeProto, AttributeProto, ValueInfoProto,
-//! TypeProto, TensorProto), encoded straight to the protobuf wire format. Field numbers are
-//! those of `onnx/onnx.proto`; ONNX Runtime is the independent parser that checks them.
-#![allow(dead_code)]
+//! A minimal ONNX model writer: the few `onnx.proto` messages a feed-forward graph needs
+//! (ModelProto, GraphProto, NodeProto, AttributeProto, ValueInfoProto, TypeProto,
+//! TensorProto), encoded straight to the protobuf wire format. Field numbers are those of
+//! `onnx/onnx.proto`; ONNX Runtime is the independent parser that checks them. The
+//! encoder's exporter (`facerecon-nn`) and the plug-in tests build their graphs with it.
 
 /// ONNX element types (TensorProto.DataType).
 pub const FLOAT: i32 = 1;
@@ -79,13 +79,20 @@ pub struct Initializer {
 }
 
 pub fn init_f32(name: &str, dims: &[i64], data: &[f32]) -> Initializer {
-    assert_eq!(dims.iter().product::<i64>() as usize, data.len());
     Initializer { name: name.into(), dims: dims.to_vec(), data: TensorData::F32(data.to_vec()) }
 }
 
 pub fn init_i64(name: &str, dims: &[i64], data: &[i64]) -> Initializer {
-    assert_eq!(dims.iter().product::<i64>() as usize, data.len());
     Initializer { name: name.into(), dims: dims.to_vec(), data: TensorData::I64(data.to_vec()) }
+}
+
+/// An initializer whose data does not match its shape.
+#[derive(Debug, thiserror::Error)]
+#[error("ONNX initializer {name}: {len} values do not fill the shape {dims:?}")]
+pub struct GraphError {
+    pub name: String,
+    pub dims: Vec<i64>,
+    pub len: usize,
 }
 
 #[derive(Clone, Debug, Default)]
@@ -97,13 +104,24 @@ pub struct Graph {
 }
 
 impl Graph {
-    /// ModelProto bytes, IR version 8, default-domain opset `opset`.
-    pub fn to_model(&self, opset: i64) -> Vec<u8> {
+    /// ModelProto bytes, IR version 8, default-domain opset `opset`, written by `producer`.
+    /// Fails when an initializer's data does not fill its declared shape.
+    pub fn to_model(&self, opset: i64, producer: &str) -> Result<Vec<u8>, GraphError> {
+        for t in &self.initializers {
+            let len = match &t.data {
+                TensorData::F32(v) => v.len(),
+                TensorData::I64(v) => v.len(),
+            };
+            let want = t.dims.iter().try_fold(1i64, |a, &d| if d < 0 { None } else { a.checked_mul(d) });
+            if want != Some(len as i64) {
+                return Err(GraphError { name: t.name.clone(), dims: t.dims.clone(), len });
+            }
+        }
         let mut graph = Vec::new();
         for n in &self.nodes {
             put_msg(&mut graph, 1, &encode_node(n));
         }
-        put_bytes(&mut graph, 2, b"test_graph");
+        put_bytes(&mut graph, 2, producer.as_bytes());
         for t in &self.initializers {
             put_msg(&mut graph, 5, &encode_tensor(t));
         }
@@ -118,10 +136,10 @@ impl Graph {
         put_varint_field(&mut opset_id, 2, opset as u64);
         let mut model = Vec::new();
         put_varint_field(&mut model, 1, 8); // ir_version
-        put_bytes(&mut model, 2, b"facerecon-tests"); // producer_name
+        put_bytes(&mut model, 2, producer.as_bytes()); // producer_name
         put_msg(&mut model, 7, &graph);
         put_msg(&mut model, 8, &opset_id);
-        model
+        Ok(model)
     }
 }
 

@@ -1,0 +1,229 @@
+//! The [`Encoder`] trait and its two paths: [`BurnEncoder`] (the burn network itself, on
+//! any burn device: Flex on CPU, a GPU backend where one is built in) and [`OrtEncoder`]
+//! (the exported ONNX graph on ONNX Runtime's CPU provider, the production CPU path:
+//! DESIGN §7, `docs/decisions/0900-encoder.md`). Both take a [`CropBatch`] — the crops and
+//! bucket indices the front end and the batcher form — and give one row of coefficients
+//! per crop.
+
+use std::path::Path;
+use std::sync::Mutex;
+
+use burn::tensor::{Device, Int, Tensor, TensorData};
+use facerecon_model::Coefficients;
+use facerecon_vision::crop::{Bucket, Crop};
+use facerecon_vision::onnx::{ModelSource, OnnxRuntimeConfig, load_session};
+use image::RgbImage;
+use ort::session::Session;
+
+use crate::NnError;
+use crate::config::{BUCKETS, NetworkConfig};
+use crate::network::EncoderNet;
+
+/// Most crops in one batch (bounds the input tensor: 4096 × 3 × 224² floats ≈ 2.5 GB).
+pub const MAX_BATCH: usize = 4096;
+
+/// Crops ready for an encoder: `[N, 3, S, S]` RGB in [0, 1] (planar, row-major) and one
+/// bucket index per crop.
+#[derive(Clone, Debug, Default)]
+pub struct CropBatch {
+    size: usize,
+    pixels: Vec<f32>,
+    buckets: Vec<i64>,
+}
+
+impl CropBatch {
+    /// An empty batch of `size`-pixel crops.
+    pub fn new(size: usize) -> Self {
+        Self { size, pixels: Vec::new(), buckets: Vec::new() }
+    }
+
+    /// The front end's crops, in order.
+    pub fn from_crops<'a>(crops: impl IntoIterator<Item = &'a Crop>) -> Result<Self, NnError> {
+        let mut b = Self::new(facerecon_vision::crop::CROP_SIZE as usize);
+        for c in crops {
+            b.push(&c.image, c.bucket)?;
+        }
+        Ok(b)
+    }
+
+    /// Appends a crop. A face below the smallest bucket runs with the lowest-resolution
+    /// weights (the router reports it; callers decide whether to reconstruct it).
+    pub fn push(&mut self, image: &RgbImage, bucket: Bucket) -> Result<(), NnError> {
+        let s = self.size;
+        if image.width() as usize != s || image.height() as usize != s {
+            return Err(NnError::Input(format!(
+                "crop of {}×{}, the encoder takes {s}×{s}",
+                image.width(),
+                image.height()
+            )));
+        }
+        if self.buckets.len() >= MAX_BATCH {
+            return Err(NnError::Input(format!("more than {MAX_BATCH} crops in one batch")));
+        }
+        let base = self.pixels.len();
+        self.pixels.resize(base + 3 * s * s, 0.0);
+        for (i, p) in image.pixels().enumerate() {
+            for c in 0..3 {
+                self.pixels[base + c * s * s + i] = p[c] as f32 / 255.0;
+            }
+        }
+        self.buckets.push(bucket.index().unwrap_or(BUCKETS - 1) as i64);
+        Ok(())
+    }
+
+    pub fn len(&self) -> usize {
+        self.buckets.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.buckets.is_empty()
+    }
+
+    pub fn size(&self) -> usize {
+        self.size
+    }
+
+    /// The planar pixels, `[N, 3, S, S]`.
+    pub fn pixels(&self) -> &[f32] {
+        &self.pixels
+    }
+
+    pub fn buckets(&self) -> &[i64] {
+        &self.buckets
+    }
+
+    /// The input tensors on `device`.
+    pub fn tensors(&self, device: &Device) -> (Tensor<4>, Tensor<1, Int>) {
+        let (n, s) = (self.len(), self.size);
+        let images = Tensor::from_data(TensorData::new(self.pixels.clone(), [n, 3, s, s]), device);
+        let buckets = Tensor::from_data(TensorData::new(self.buckets.clone(), [n]), device);
+        (images, buckets)
+    }
+}
+
+/// Crops in, coefficients out.
+pub trait Encoder: Send + Sync {
+    /// Which path and device, for logs and benchmark tables.
+    fn describe(&self) -> String;
+
+    fn config(&self) -> &NetworkConfig;
+
+    /// One output row per crop, [`crate::config::Head::ALL`] order.
+    fn encode_rows(&self, batch: &CropBatch) -> Result<Vec<Vec<f32>>, NnError>;
+
+    /// One set of coefficients per crop.
+    fn encode(&self, batch: &CropBatch) -> Result<Vec<Coefficients>, NnError> {
+        self.encode_rows(batch)?.iter().map(|r| self.config().coefficients(r)).collect()
+    }
+}
+
+fn check_batch(config: &NetworkConfig, batch: &CropBatch) -> Result<(), NnError> {
+    if batch.size != config.input_size {
+        return Err(NnError::Input(format!("crops of {} px, the encoder takes {} px", batch.size, config.input_size)));
+    }
+    Ok(())
+}
+
+fn split_rows(data: Vec<f32>, n: usize, k: usize) -> Result<Vec<Vec<f32>>, NnError> {
+    if data.len() != n * k {
+        return Err(NnError::Shape(format!("{} outputs for {n} crops of {k}", data.len())));
+    }
+    Ok(data.chunks_exact(k).map(<[f32]>::to_vec).collect())
+}
+
+/// The burn network, weights loaded once, on one device.
+pub struct BurnEncoder {
+    config: NetworkConfig,
+    net: EncoderNet,
+    device: Device,
+}
+
+impl BurnEncoder {
+    pub fn new(config: NetworkConfig, net: EncoderNet, device: Device) -> Self {
+        Self { config, net, device }
+    }
+
+    /// Loads a weights file onto `device`.
+    pub fn load(path: &Path, device: Device) -> Result<Self, NnError> {
+        let (config, net) = crate::weights::load(path, &device)?;
+        Ok(Self { config, net, device })
+    }
+
+    pub fn net(&self) -> &EncoderNet {
+        &self.net
+    }
+}
+
+impl Encoder for BurnEncoder {
+    fn describe(&self) -> String {
+        format!("burn ({:?})", self.device)
+    }
+
+    fn config(&self) -> &NetworkConfig {
+        &self.config
+    }
+
+    fn encode_rows(&self, batch: &CropBatch) -> Result<Vec<Vec<f32>>, NnError> {
+        check_batch(&self.config, batch)?;
+        if batch.is_empty() {
+            return Ok(Vec::new());
+        }
+        let (images, buckets) = batch.tensors(&self.device);
+        let out = self.net.forward(images, buckets, &self.config).coefficients;
+        let data =
+            out.into_data().convert::<f32>().try_into_vec::<f32>().map_err(|e| NnError::Shape(format!("{e:?}")))?;
+        split_rows(data, batch.len(), self.config.output_size())
+    }
+}
+
+/// The exported graph on ONNX Runtime (CPU).
+pub struct OrtEncoder {
+    config: NetworkConfig,
+    session: Mutex<Session>,
+    threads: usize,
+}
+
+impl OrtEncoder {
+    /// A session for the ONNX bytes of a network of `config` ([`crate::onnx::export`]).
+    pub fn from_onnx(config: NetworkConfig, onnx: &[u8], runtime: &OnnxRuntimeConfig) -> Result<Self, NnError> {
+        let session = load_session(runtime, ModelSource::Bytes(onnx), "encoder").map_err(NnError::Onnx)?;
+        Ok(Self { config, session: Mutex::new(session), threads: runtime.intra_op_threads })
+    }
+
+    /// Exports a weights file and loads it: the weights file stays the one artefact.
+    pub fn load(path: &Path, runtime: &OnnxRuntimeConfig) -> Result<Self, NnError> {
+        let device = Device::default();
+        let (config, net) = crate::weights::load(path, &device)?;
+        let onnx = crate::onnx::export(&net, &config)?;
+        Self::from_onnx(config, &onnx, runtime)
+    }
+}
+
+impl Encoder for OrtEncoder {
+    fn describe(&self) -> String {
+        format!("onnxruntime cpu ({} thread{})", self.threads, if self.threads == 1 { "" } else { "s" })
+    }
+
+    fn config(&self) -> &NetworkConfig {
+        &self.config
+    }
+
+    fn encode_rows(&self, batch: &CropBatch) -> Result<Vec<Vec<f32>>, NnError> {
+        check_batch(&self.config, batch)?;
+        if batch.is_empty() {
+            return Ok(Vec::new());
+        }
+        let (n, s) = (batch.len(), batch.size);
+        let run = |e: ort::Error| NnError::Runtime(e.to_string());
+        let images = ort::value::Tensor::from_array(([n, 3, s, s], batch.pixels.clone())).map_err(run)?;
+        let buckets = ort::value::Tensor::from_array(([n], batch.buckets.clone())).map_err(run)?;
+        let mut session = self.session.lock().unwrap_or_else(|p| p.into_inner());
+        let outputs = session
+            .run(ort::inputs![crate::onnx::INPUT_IMAGES => images, crate::onnx::INPUT_BUCKETS => buckets])
+            .map_err(run)?;
+        let value =
+            outputs.get(crate::onnx::OUTPUT).ok_or_else(|| NnError::Runtime("no coefficients output".into()))?;
+        let (_, data) = value.try_extract_tensor::<f32>().map_err(run)?;
+        split_rows(data.to_vec(), n, self.config.output_size())
+    }
+}

@@ -1,0 +1,60 @@
+//! The learned encoder (DESIGN §7): a resolution-aware ResNet-18 that regresses a face's
+//! coefficients from its 224-px crop in one pass.
+//!
+//! * [`config`] — the network's shape and output map ([`NetworkConfig`]), the one
+//!   description every path reads; the coefficient row ⇄ [`facerecon_model::Coefficients`].
+//! * [`network`] — the network in burn ([`EncoderNet`]), for training and GPU inference.
+//! * [`weights`] — safetensors files: tensors by module path, the configuration in the header.
+//! * [`onnx`] — export of a network to an ONNX graph (our own writer, op for op).
+//! * [`encoder`] — the [`Encoder`] trait, [`CropBatch`], and the two inference paths:
+//!   [`BurnEncoder`] and [`OrtEncoder`] (ONNX Runtime, the CPU path).
+
+pub mod config;
+pub mod encoder;
+pub mod network;
+pub mod onnx;
+pub mod weights;
+
+pub use config::{Head, NetworkConfig};
+pub use encoder::{BurnEncoder, CropBatch, Encoder, OrtEncoder};
+pub use network::{EncoderNet, EncoderOutput};
+
+/// Why the encoder could not be built, loaded or run.
+#[derive(Debug, thiserror::Error)]
+pub enum NnError {
+    #[error("invalid encoder configuration: {0}")]
+    Config(String),
+    #[error("face model: {0}")]
+    Model(String),
+    #[error("encoder weights: {0}")]
+    Weights(String),
+    #[error("{}", path.display())]
+    Io {
+        path: std::path::PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("ONNX export: {0}")]
+    Export(String),
+    #[error(transparent)]
+    Onnx(#[from] facerecon_vision::onnx::OnnxError),
+    #[error("encoder input: {0}")]
+    Input(String),
+    #[error("encoder output shape: {0}")]
+    Shape(String),
+    #[error("encoder output not finite: {0}")]
+    NonFinite(String),
+    #[error("ONNX Runtime: {0}")]
+    Runtime(String),
+}
+
+impl NnError {
+    /// Whose fault (see [`facerecon_model::ErrorKind`]).
+    pub fn kind(&self) -> facerecon_model::ErrorKind {
+        use facerecon_model::ErrorKind;
+        match self {
+            NnError::Input(_) => ErrorKind::Input,
+            _ => ErrorKind::Internal,
+        }
+    }
+}

@@ -1,0 +1,179 @@
+//! Encoder weights on disk: one safetensors file per model version, the tensors named by
+//! their module path (`blocks.3.conv1.bn.gamma`), the [`NetworkConfig`] in the header's
+//! metadata. Released weights are fp16 (half the bytes, well inside the parity tolerance);
+//! training checkpoints keep fp32.
+
+use std::collections::{BTreeMap, HashMap};
+use std::path::Path;
+
+use burn::module::{Module, ModuleMapper, ModuleVisitor, Param};
+use burn::tensor::{Device, Tensor, TensorData};
+use safetensors::{Dtype, SafeTensors, tensor::TensorView};
+
+use crate::NnError;
+use crate::config::NetworkConfig;
+use crate::network::EncoderNet;
+
+/// Metadata tag of the file layout.
+pub const WEIGHTS_FORMAT: &str = "facerecon-encoder/1";
+
+/// Largest weights file read (a full fp32 encoder is ≈ 60 MB).
+pub const MAX_WEIGHTS_BYTES: u64 = 1 << 30;
+
+/// Precision of the stored tensors.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Precision {
+    F32,
+    F16,
+}
+
+/// Every float tensor of `net` (parameters and batch-norm running statistics) by path.
+pub fn named_tensors(net: &EncoderNet) -> Vec<(String, Vec<usize>, Vec<f32>)> {
+    struct Collect {
+        path: Vec<String>,
+        out: Vec<(String, Vec<usize>, Vec<f32>)>,
+    }
+    impl ModuleVisitor for Collect {
+        fn enter_module(&mut self, name: &str, _: &str) {
+            self.path.push(name.to_string());
+        }
+        fn exit_module(&mut self, _: &str, _: &str) {
+            self.path.pop();
+        }
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            let t = param.val();
+            let dims = t.dims().to_vec();
+            // A tensor of this module's own making is always f32 and readable.
+            let data = t.into_data().convert::<f32>().try_into_vec::<f32>().unwrap_or_default();
+            self.out.push((self.path.join("."), dims, data));
+        }
+    }
+    let mut c = Collect { path: Vec::new(), out: Vec::new() };
+    net.visit(&mut c);
+    c.out
+}
+
+/// The safetensors bytes of `net` with its configuration.
+pub fn to_bytes(net: &EncoderNet, config: &NetworkConfig, precision: Precision) -> Result<Vec<u8>, NnError> {
+    let tensors = named_tensors(net);
+    let mut bytes: Vec<(String, Vec<usize>, Vec<u8>)> = Vec::with_capacity(tensors.len());
+    for (name, dims, data) in tensors {
+        let raw = match precision {
+            Precision::F32 => data.iter().flat_map(|v| v.to_le_bytes()).collect(),
+            Precision::F16 => data.iter().flat_map(|&v| half::f16::from_f32(v).to_le_bytes()).collect(),
+        };
+        bytes.push((name, dims, raw));
+    }
+    let dtype = match precision {
+        Precision::F32 => Dtype::F32,
+        Precision::F16 => Dtype::F16,
+    };
+    let views = bytes
+        .iter()
+        .map(|(n, d, b)| {
+            Ok((n.clone(), TensorView::new(dtype, d.clone(), b).map_err(|e| NnError::Weights(e.to_string()))?))
+        })
+        .collect::<Result<Vec<_>, NnError>>()?;
+    let config_json = serde_json::to_string(config).map_err(|e| NnError::Weights(e.to_string()))?;
+    let metadata =
+        HashMap::from([("format".to_string(), WEIGHTS_FORMAT.to_string()), ("config".to_string(), config_json)]);
+    safetensors::serialize(views, Some(metadata)).map_err(|e| NnError::Weights(e.to_string()))
+}
+
+/// Writes `net` to `path` (through a temporary file, so a reader never sees half a file).
+pub fn save(net: &EncoderNet, config: &NetworkConfig, precision: Precision, path: &Path) -> Result<(), NnError> {
+    let bytes = to_bytes(net, config, precision)?;
+    let tmp = path.with_extension("safetensors.tmp");
+    let io = |e: std::io::Error| NnError::Io { path: path.to_path_buf(), source: e };
+    std::fs::write(&tmp, &bytes).map_err(io)?;
+    std::fs::rename(&tmp, path).map_err(io)
+}
+
+/// Reads the configuration and tensors of a weights file.
+pub fn load(path: &Path, device: &Device) -> Result<(NetworkConfig, EncoderNet), NnError> {
+    let io = |e: std::io::Error| NnError::Io { path: path.to_path_buf(), source: e };
+    let len = std::fs::metadata(path).map_err(io)?.len();
+    if len > MAX_WEIGHTS_BYTES {
+        return Err(NnError::Weights(format!(
+            "{}: {len} bytes, over the {MAX_WEIGHTS_BYTES}-byte limit",
+            path.display()
+        )));
+    }
+    from_bytes(&std::fs::read(path).map_err(io)?, device)
+}
+
+/// [`load`] from bytes.
+pub fn from_bytes(bytes: &[u8], device: &Device) -> Result<(NetworkConfig, EncoderNet), NnError> {
+    let bad = |m: String| NnError::Weights(m);
+    let (_, header) = SafeTensors::read_metadata(bytes).map_err(|e| bad(format!("not a safetensors file: {e}")))?;
+    let meta = header.metadata().clone().unwrap_or_default();
+    match meta.get("format") {
+        Some(f) if f == WEIGHTS_FORMAT => {}
+        other => return Err(bad(format!("format {other:?}, expected {WEIGHTS_FORMAT:?}"))),
+    }
+    let config: NetworkConfig = serde_json::from_str(meta.get("config").map(String::as_str).unwrap_or(""))
+        .map_err(|e| bad(format!("configuration: {e}")))?;
+    config.validate()?;
+    let file = SafeTensors::deserialize(bytes).map_err(|e| bad(e.to_string()))?;
+    let mut stored: BTreeMap<String, (Vec<usize>, Vec<f32>)> = BTreeMap::new();
+    for (name, view) in file.tensors() {
+        let data: Vec<f32> = match view.dtype() {
+            Dtype::F32 => view.data().chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect(),
+            Dtype::F16 => {
+                view.data().chunks_exact(2).map(|c| half::f16::from_le_bytes([c[0], c[1]]).to_f32()).collect()
+            }
+            other => return Err(bad(format!("tensor {name}: dtype {other:?}, expected F32 or F16"))),
+        };
+        stored.insert(name, (view.shape().to_vec(), data));
+    }
+    let net = EncoderNet::new(&config, device);
+    let net = assign(net, stored, device)?;
+    Ok((config, net))
+}
+
+/// Replaces every tensor of `net` by the stored one of the same path and shape.
+pub fn assign(
+    net: EncoderNet,
+    mut stored: BTreeMap<String, (Vec<usize>, Vec<f32>)>,
+    device: &Device,
+) -> Result<EncoderNet, NnError> {
+    struct Assign<'a> {
+        path: Vec<String>,
+        stored: &'a mut BTreeMap<String, (Vec<usize>, Vec<f32>)>,
+        device: &'a Device,
+        errors: Vec<String>,
+    }
+    impl ModuleMapper for Assign<'_> {
+        fn enter_module(&mut self, name: &str, _: &str) {
+            self.path.push(name.to_string());
+        }
+        fn exit_module(&mut self, _: &str, _: &str) {
+            self.path.pop();
+        }
+        fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
+            let name = self.path.join(".");
+            let want = param.val().dims().to_vec();
+            match self.stored.remove(&name) {
+                None => self.errors.push(format!("{name}: missing")),
+                Some((shape, _)) if shape != want => {
+                    self.errors.push(format!("{name}: shape {shape:?}, the network has {want:?}"))
+                }
+                Some((_, data)) => {
+                    let t = Tensor::<D>::from_data(TensorData::new(data, want), self.device);
+                    return param.map(|old| t.set_require_grad(old.is_require_grad()));
+                }
+            }
+            param
+        }
+    }
+    let mut a = Assign { path: Vec::new(), stored: &mut stored, device, errors: Vec::new() };
+    let net = net.map(&mut a);
+    let mut errors = a.errors;
+    errors.extend(stored.keys().map(|k| format!("{k}: not in the network")));
+    if errors.is_empty() {
+        Ok(net)
+    } else {
+        let shown: Vec<_> = errors.iter().take(5).cloned().collect();
+        Err(NnError::Weights(format!("{} tensor(s) do not match: {}", errors.len(), shown.join("; "))))
+    }
+}

@@ -1,0 +1,230 @@
+//! The encoder's network, weights files and inference paths, on the tiny configuration and
+//! the default face model. The ONNX Runtime path is checked against the burn network
+//! (ONNX Runtime is an independent implementation of every op), the burn network against
+//! brute-force properties: the mean face at start, per-sample α rows, batch independence.
+
+use std::sync::OnceLock;
+
+use burn::module::Param;
+use burn::tensor::{Device, Tensor, TensorData};
+use facerecon_model::{Coefficients, MorphableModel};
+use facerecon_nn::weights::{self, Precision};
+use facerecon_nn::{BurnEncoder, CropBatch, Encoder, EncoderNet, NetworkConfig, NnError, OrtEncoder};
+use facerecon_vision::crop::Bucket;
+use facerecon_vision::onnx::{OnnxRuntimeConfig, resolve_runtime_library};
+use image::RgbImage;
+
+fn model() -> &'static MorphableModel {
+    static M: OnceLock<std::sync::Arc<MorphableModel>> = OnceLock::new();
+    M.get_or_init(|| facerecon_model::ict::load_default().expect("default model (run scripts/setup)"))
+}
+
+fn tiny() -> NetworkConfig {
+    NetworkConfig::tiny(model()).unwrap()
+}
+
+/// Deterministic textured crops (gradients and stripes, different per index).
+fn crop(size: usize, k: u32) -> RgbImage {
+    RgbImage::from_fn(size as u32, size as u32, |x, y| {
+        let v = |a: u32, b: u32| ((x * a + y * b + 37 * k) % 256) as u8;
+        image::Rgb([v(3, 1), v(1, 5), v(7 + k, 2)])
+    })
+}
+
+fn batch(config: &NetworkConfig, buckets: &[Bucket]) -> CropBatch {
+    let mut b = CropBatch::new(config.input_size);
+    for (k, &bucket) in buckets.iter().enumerate() {
+        b.push(&crop(config.input_size, k as u32), bucket).unwrap();
+    }
+    b
+}
+
+/// A network whose batch norms, α and heads are far from their initial values, so that a
+/// path that dropped any of them would show.
+fn perturbed(config: &NetworkConfig, device: &Device) -> EncoderNet {
+    let net = EncoderNet::new(config, device);
+    let mut stored = std::collections::BTreeMap::new();
+    for (i, (name, dims, data)) in weights::named_tensors(&net).into_iter().enumerate() {
+        let wobble = |j: usize| (((i * 7919 + j * 104_729) % 1000) as f32 / 1000.0 - 0.5) * 2.0;
+        let data: Vec<f32> = match name.rsplit('.').next() {
+            Some("running_var") => data.iter().enumerate().map(|(j, _)| 0.5 + 0.4 * wobble(j)).collect(),
+            Some("running_mean") | Some("beta") => data.iter().enumerate().map(|(j, _)| 0.1 * wobble(j)).collect(),
+            Some("gamma") => data.iter().enumerate().map(|(j, _)| 1.0 + 0.3 * wobble(j)).collect(),
+            _ if name == "alpha" => data.iter().enumerate().map(|(j, _)| 1.0 + 0.5 * wobble(j)).collect(),
+            // Last layers 100× their initial range: outputs move well away from the mean face.
+            _ if name.contains(".out.") => data.iter().map(|v| v * 100.0).collect(),
+            _ => data,
+        };
+        stored.insert(name, (dims, data));
+    }
+    weights::assign(net, stored, device).unwrap()
+}
+
+fn max_abs_diff(a: &[Vec<f32>], b: &[Vec<f32>]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    a.iter().flatten().zip(b.iter().flatten()).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+}
+
+#[test]
+fn a_new_network_starts_at_the_mean_face_in_front_of_the_camera_lit() {
+    let config = tiny();
+    let device = Device::default();
+    let enc = BurnEncoder::new(config.clone(), EncoderNet::new(&config, &device), device);
+    let out = enc.encode(&batch(&config, &[Bucket::B0, Bucket::B3])).unwrap();
+    let neutral = Coefficients::neutral(config.layout, config.neutral_distance_mm);
+    for c in &out {
+        assert!(c.identity.iter().all(|v| v.abs() < 0.05), "identity {:?}", &c.identity[..4]);
+        assert!(c.albedo.iter().all(|v| v.abs() < 0.05));
+        assert!(c.expression.iter().all(|v| (0.0..0.05).contains(v)), "expression {:?}", &c.expression[..4]);
+        assert!(c.rotation.iter().all(|v| v.abs() < 0.05));
+        for a in 0..3 {
+            assert!((c.translation[a] - neutral.translation[a]).abs() < 1.0, "{:?}", c.translation);
+        }
+        assert!((c.light[0][0] - neutral.light[0][0]).abs() < 0.05);
+    }
+    // ICT: the face fills a 224-px crop at 30° fov about half a metre away.
+    assert!((300.0..900.0).contains(&config.neutral_distance_mm), "{}", config.neutral_distance_mm);
+}
+
+#[test]
+fn each_sample_uses_its_own_bucket_row_and_samples_do_not_interact() {
+    let config = tiny();
+    let device = Device::default();
+    let net = perturbed(&config, &device);
+    let enc = BurnEncoder::new(config.clone(), net, device);
+    let buckets = [Bucket::B0, Bucket::B2, Bucket::B3, Bucket::TooSmall];
+    let together = enc.encode_rows(&batch(&config, &buckets)).unwrap();
+    for (k, &b) in buckets.iter().enumerate() {
+        let mut one = CropBatch::new(config.input_size);
+        one.push(&crop(config.input_size, k as u32), b).unwrap();
+        let alone = enc.encode_rows(&one).unwrap();
+        assert!(max_abs_diff(&alone, &together[k..k + 1]) < 1e-3, "sample {k}");
+    }
+    // The same crop under another bucket row gives another answer; too small runs as B3.
+    let mut same = CropBatch::new(config.input_size);
+    for b in [Bucket::B0, Bucket::B1, Bucket::B3, Bucket::TooSmall] {
+        same.push(&crop(config.input_size, 0), b).unwrap();
+    }
+    let rows = enc.encode_rows(&same).unwrap();
+    assert!(max_abs_diff(&rows[0..1], &rows[1..2]) > 1e-2);
+    assert!(max_abs_diff(&rows[2..3], &rows[3..4]) < 1e-5);
+}
+
+#[test]
+fn alpha_zero_turns_every_residual_branch_off() {
+    // With α = 0 for bucket 1 every block is relu(skip(x)): the answer for that bucket must
+    // not depend on the residual branches' convolutions, while bucket 0's must.
+    let config = tiny();
+    let device = Device::default();
+    let a = perturbed(&config, &device);
+    let mut b_tensors = std::collections::BTreeMap::new();
+    for (name, dims, data) in weights::named_tensors(&a) {
+        let data = if name.contains(".conv1.conv") || name.contains(".conv2.conv") {
+            data.iter().map(|v| -3.0 * v).collect()
+        } else {
+            data
+        };
+        b_tensors.insert(name, (dims, data));
+    }
+    let b = weights::assign(EncoderNet::new(&config, &device), b_tensors, &device).unwrap();
+    let zero_row = |mut net: EncoderNet| {
+        let alpha = net.alpha.val().into_data().try_into_vec::<f32>().unwrap();
+        let mut alpha2 = alpha.clone();
+        alpha2[8..16].iter_mut().for_each(|v| *v = 0.0);
+        net.alpha = Param::from_tensor(Tensor::from_data(TensorData::new(alpha2, [4, 8]), &device));
+        net
+    };
+    let (ea, eb) = (
+        BurnEncoder::new(config.clone(), zero_row(a), device.clone()),
+        BurnEncoder::new(config.clone(), zero_row(b), device.clone()),
+    );
+    let input = batch(&config, &[Bucket::B1, Bucket::B0]);
+    let (ra, rb) = (ea.encode_rows(&input).unwrap(), eb.encode_rows(&input).unwrap());
+    assert!(max_abs_diff(&ra[0..1], &rb[0..1]) < 1e-4, "bucket 1 (α = 0) must ignore the branches");
+    assert!(max_abs_diff(&ra[1..2], &rb[1..2]) > 1e-2, "bucket 0 (α ≠ 0) must use them");
+}
+
+#[test]
+fn weights_files_round_trip_in_fp32_exactly_and_in_fp16_closely() {
+    let config = tiny();
+    let device = Device::default();
+    let net = perturbed(&config, &device);
+    let input = batch(&config, &[Bucket::B0, Bucket::B2]);
+    let before = BurnEncoder::new(config.clone(), net, device.clone());
+    let reference = before.encode_rows(&input).unwrap();
+    let dir = std::env::temp_dir().join(format!("facerecon-nn-test-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for (precision, tol) in [(Precision::F32, 0.0), (Precision::F16, 2e-2)] {
+        let path = dir.join(format!("w-{precision:?}.safetensors"));
+        weights::save(before.net(), &config, precision, &path).unwrap();
+        let after = BurnEncoder::load(&path, device.clone()).unwrap();
+        assert_eq!(after.config(), &config);
+        let got = after.encode_rows(&input).unwrap();
+        let scale = reference.iter().flatten().fold(1.0f32, |m, v| m.max(v.abs()));
+        let d = max_abs_diff(&got, &reference);
+        assert!(d <= tol * scale, "{precision:?}: max |Δ| {d} (output scale {scale})");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn bad_weights_and_bad_crops_are_clear_errors() {
+    let config = tiny();
+    let device = Device::default();
+    let net = EncoderNet::new(&config, &device);
+    let bytes = weights::to_bytes(&net, &config, Precision::F16).unwrap();
+    // Truncated, garbage, another network's tensors.
+    for bad in [&bytes[..bytes.len() / 2], b"not safetensors at all".as_slice(), &[0xff; 16]] {
+        let e = weights::from_bytes(bad, &device).expect_err("must fail");
+        assert!(matches!(e, NnError::Weights(_)), "{e}");
+    }
+    let wider = NetworkConfig { width: 16, ..config.clone() };
+    let mut other = weights::to_bytes(&EncoderNet::new(&wider, &device), &wider, Precision::F16).unwrap();
+    // Same tensors, header claiming the tiny configuration: every conv shape disagrees.
+    let (n, _) = safetensors::SafeTensors::read_metadata(&other).unwrap();
+    let header = std::str::from_utf8(&other[8..8 + n]).unwrap().replace("\\\"width\\\":16", "\\\"width\\\": 8");
+    assert_eq!(header.len(), n);
+    other[8..8 + n].copy_from_slice(header.as_bytes());
+    let e = weights::from_bytes(&other, &device).expect_err("must fail");
+    assert!(e.to_string().contains("shape"), "{e}");
+
+    let enc = BurnEncoder::new(config.clone(), net, device);
+    let mut wrong = CropBatch::new(config.input_size);
+    let e = wrong.push(&crop(100, 0), Bucket::B0).unwrap_err();
+    assert!(matches!(e, NnError::Input(_)) && e.to_string().contains("100×100"), "{e}");
+    let e = enc.encode(&CropBatch::new(96)).unwrap_err();
+    assert!(matches!(e, NnError::Input(_)), "{e}");
+    assert!(enc.encode(&CropBatch::new(config.input_size)).unwrap().is_empty());
+}
+
+fn ort_runtime() -> Option<OnnxRuntimeConfig> {
+    if std::env::var("FACERECON_SKIP_ORT_TESTS").as_deref() == Ok("1") {
+        eprintln!("skipped: FACERECON_SKIP_ORT_TESTS=1");
+        return None;
+    }
+    let config = OnnxRuntimeConfig { intra_op_threads: 2, ..OnnxRuntimeConfig::default() };
+    resolve_runtime_library(&config).unwrap_or_else(|e| panic!("{e} (FACERECON_SKIP_ORT_TESTS=1 skips)"));
+    Some(config)
+}
+
+#[test]
+fn onnx_runtime_agrees_with_the_burn_network() {
+    let Some(runtime) = ort_runtime() else { return };
+    let config = tiny();
+    let device = Device::default();
+    let net = perturbed(&config, &device);
+    let onnx = facerecon_nn::onnx::export(&net, &config).unwrap();
+    let burn = BurnEncoder::new(config.clone(), net, device);
+    let ort = OrtEncoder::from_onnx(config.clone(), &onnx, &runtime).unwrap();
+    // Every bucket, and a batch size the graph was not written for.
+    let input = batch(&config, &[Bucket::B0, Bucket::B1, Bucket::B2, Bucket::B3, Bucket::TooSmall]);
+    let (a, b) = (burn.encode_rows(&input).unwrap(), ort.encode_rows(&input).unwrap());
+    let scale = a.iter().flatten().fold(1.0f32, |m, v| m.max(v.abs()));
+    let d = max_abs_diff(&a, &b);
+    eprintln!("burn vs onnxruntime: max |Δ| {d:.2e}, output scale {scale:.1}");
+    // The stated parity tolerance (docs/decisions/0900-encoder.md): 1e-4 of the output scale.
+    assert!(d <= 1e-4 * scale, "max |Δ| {d} (scale {scale})");
+    // And the rows decode to coefficients that differ from the mean face.
+    let c = ort.encode(&input).unwrap();
+    assert!(c[0].identity.iter().any(|v| v.abs() > 0.1));
+}
