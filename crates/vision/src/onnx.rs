@@ -1,7 +1,8 @@
 //! Pluggable ONNX face detectors and 68-point landmarkers, run by ONNX Runtime through
 //! `ort`. This module owns the plug-in contract below, the runtime loading, the input
 //! tensors and the mapping of model outputs back to photo pixels. `docs/onnx-models.md`
-//! says the same for model authors, with examples.
+//! says the same for model authors, with examples. [`graph`] writes ONNX models (the
+//! encoder's exporter and the plug-in tests use it).
 //!
 //! # Runtime
 //!
