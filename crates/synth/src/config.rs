@@ -27,6 +27,13 @@ pub struct SynthConfig {
     /// Roll ~ N(0, sd) clamped to ±max, degrees.
     pub roll_sd_deg: f32,
     pub roll_max_deg: f32,
+    /// `Some(s)`: render each face as the front end's crop of it, `s`×`s` pixels (the crop
+    /// camera of DESIGN §4, the landmarks' crop square filling the image), so that the ground
+    /// truth is in the crop camera's frame — the encoder's training data. `buckets`,
+    /// `image_size` and the size ranges are then unused; lower resolutions are made from
+    /// these by bicubic down/up-sampling (DESIGN §7).
+    #[serde(default)]
+    pub crop_frame: Option<u32>,
 }
 
 impl Default for SynthConfig {
@@ -41,6 +48,7 @@ impl Default for SynthConfig {
             pitch_max_deg: 35.0,
             roll_sd_deg: 8.0,
             roll_max_deg: 30.0,
+            crop_frame: None,
         }
     }
 }
@@ -58,6 +66,11 @@ impl SynthConfig {
             && !((48..=8192).contains(&w) && (48..=8192).contains(&h))
         {
             return bad(format!("image size {w}×{h}: each side must be in 48..=8192"));
+        }
+        if let Some(s) = self.crop_frame
+            && !(32..=1024).contains(&s)
+        {
+            return bad(format!("crop frame {s} px outside 32..=1024"));
         }
         if !(64..=8192).contains(&self.max_image_side) {
             return bad(format!("max image side {} outside 64..=8192", self.max_image_side));

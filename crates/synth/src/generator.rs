@@ -92,31 +92,40 @@ impl<'m> Generator<'m> {
         let part_colors = PartColors::random(&mut rng);
 
         // --- size and placement ---------------------------------------------------------
-        let bucket = cfg.buckets[rng.below(cfg.buckets.len() as u64) as usize] as usize;
-        let (lo, hi) = Bucket::from_index(bucket)
-            .and_then(Bucket::side_range)
-            .ok_or_else(|| SynthError::Config(format!("no bucket {bucket}")))?;
-        let hi = hi.min(cfg.max_crop_side);
-        let mut side = rng.log_range(lo as f64 * 1.03, hi as f64 * 0.97) as f32;
-        let (width, height) = match cfg.image_size {
-            Some(s) => s,
+        let (width, height, side, cx, cy) = match cfg.crop_frame {
+            // The crop itself: the crop square fills the image, centred.
+            Some(s) => (s, s, s as f32, 0.5 * s as f32 - 0.5, 0.5 * s as f32 - 0.5),
             None => {
-                let min_side = (side * 1.1).ceil().max(64.0);
-                let max_side = (cfg.max_image_side as f32).max(min_side);
-                let long = rng.log_range(min_side.max(96.0).min(max_side) as f64, max_side as f64 + 1.0) as f32;
-                let aspect = rng.range(0.6, 1.0) as f32;
-                let short = (long * aspect).max(min_side);
-                if rng.chance(0.5) { (long as u32, short as u32) } else { (short as u32, long as u32) }
+                let bucket = cfg.buckets[rng.below(cfg.buckets.len() as u64) as usize] as usize;
+                let (lo, hi) = Bucket::from_index(bucket)
+                    .and_then(Bucket::side_range)
+                    .ok_or_else(|| SynthError::Config(format!("no bucket {bucket}")))?;
+                let hi = hi.min(cfg.max_crop_side);
+                let mut side = rng.log_range(lo as f64 * 1.03, hi as f64 * 0.97) as f32;
+                let (width, height) = match cfg.image_size {
+                    Some(s) => s,
+                    None => {
+                        let min_side = (side * 1.1).ceil().max(64.0);
+                        let max_side = (cfg.max_image_side as f32).max(min_side);
+                        let long = rng.log_range(min_side.max(96.0).min(max_side) as f64, max_side as f64 + 1.0) as f32;
+                        let aspect = rng.range(0.6, 1.0) as f32;
+                        let short = (long * aspect).max(min_side);
+                        if rng.chance(0.5) { (long as u32, short as u32) } else { (short as u32, long as u32) }
+                    }
+                };
+                side = side.min(0.95 * width.min(height) as f32);
+                let margin = 0.45 * side;
+                let cx = rng.range(
+                    margin.min(width as f32 / 2.0) as f64,
+                    (width as f32 - margin).max(width as f32 / 2.0) as f64,
+                ) as f32;
+                let cy = rng.range(
+                    margin.min(height as f32 / 2.0) as f64,
+                    (height as f32 - margin).max(height as f32 / 2.0) as f64,
+                ) as f32;
+                (width, height, side, cx, cy)
             }
         };
-        side = side.min(0.95 * width.min(height) as f32);
-        let margin = 0.45 * side;
-        let cx = rng
-            .range(margin.min(width as f32 / 2.0) as f64, (width as f32 - margin).max(width as f32 / 2.0) as f64)
-            as f32;
-        let cy = rng
-            .range(margin.min(height as f32 / 2.0) as f64, (height as f32 - margin).max(height as f32 / 2.0) as f64)
-            as f32;
 
         let shape = model.shape(&identity, &expression, Extent::Face).map_err(SynthError::model)?;
         let rotation = euler.axis_angle();
@@ -233,7 +242,8 @@ impl Generator<'_> {
 
 /// Translation that puts the landmarks' centroid on the ray through pixel `centre` at the
 /// distance where their crop (see [`Crop`]) is `side` pixels: solved on the projection
-/// itself (two fixed-point rounds: the crop side is ∝ 1/distance up to perspective).
+/// itself (fixed-point rounds until within 0.01 px: the crop side is ∝ 1/distance up to
+/// perspective).
 pub fn place_face(
     lm: &[[f32; 3]],
     rotation: [f32; 3],
@@ -261,8 +271,13 @@ pub fn place_face(
     let mut d = 1000.0f32;
     let mut aim = centre;
     let mut t = at(aim, d);
-    for _ in 0..3 {
+    // Converges in 2–3 rounds for a face small in its image; a face filling it (crop
+    // framing, strong yaw) needs more, perspective bending the offset.
+    for _ in 0..16 {
         let c = crop_of(t);
+        if (c.side / side - 1.0).abs() < 1e-5 && (centre[0] - c.cx).abs() < 0.01 && (centre[1] - c.cy).abs() < 0.01 {
+            break;
+        }
         d *= c.side / side;
         // Move the aim point by the remaining offset of the crop centre.
         aim = [aim[0] + centre[0] - c.cx, aim[1] + centre[1] - c.cy];

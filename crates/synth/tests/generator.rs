@@ -146,6 +146,23 @@ fn crops_fall_in_the_requested_bucket() {
 }
 
 #[test]
+fn crop_frame_samples_are_the_front_ends_crop_of_the_face() {
+    // The crop rule applied to the sample's own projected landmarks gives back the whole
+    // image (centred, full side), so its coefficients are in the crop camera's frame.
+    let model = model();
+    let g = Generator::new(&model, SynthConfig { crop_frame: Some(224), ..Default::default() }).unwrap();
+    for i in 0..4 {
+        let s = g.sample(11, i).unwrap();
+        let t = &s.truth;
+        assert_eq!((t.width, t.height, s.image.width(), s.image.height()), (224, 224, 224, 224));
+        assert!((t.crop.side - 224.0).abs() < 0.5, "sample {i}: side {}", t.crop.side);
+        assert!((t.crop.cx - 111.5).abs() < 0.5 && (t.crop.cy - 111.5).abs() < 0.5, "{:?}", t.crop);
+        assert!(t.face_pixels > 224 * 224 / 10, "sample {i}: the face covers {} px", t.face_pixels);
+    }
+    assert!(SynthConfig { crop_frame: Some(8), ..Default::default() }.validate().is_err());
+}
+
+#[test]
 fn written_files_read_back_to_the_sample() {
     let model = model();
     let g = Generator::new(&model, small()).unwrap();
