@@ -6,7 +6,7 @@
 use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
-use burn::module::{Module, ModuleMapper, ModuleVisitor, Param};
+use burn::module::{Module, ModuleMapper, ModuleVisitor, Param, ParamId};
 use burn::tensor::{Device, Tensor, TensorData};
 use safetensors::{Dtype, SafeTensors, tensor::TensorView};
 
@@ -19,6 +19,10 @@ pub const WEIGHTS_FORMAT: &str = "facerecon-encoder/1";
 
 /// Largest weights file read (a full fp32 encoder is ≈ 60 MB).
 pub const MAX_WEIGHTS_BYTES: u64 = 1 << 30;
+
+/// Metadata key of the parameter ids a training checkpoint keeps (the optimizer's state is
+/// keyed by them), a JSON map from tensor path to id.
+pub const PARAM_IDS_KEY: &str = "param_ids";
 
 /// Precision of the stored tensors.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -53,8 +57,40 @@ pub fn named_tensors(net: &EncoderNet) -> Vec<(String, Vec<usize>, Vec<f32>)> {
     c.out
 }
 
+/// The parameter id of every trainable tensor, by path.
+pub fn param_ids(net: &EncoderNet) -> BTreeMap<String, u64> {
+    struct Collect {
+        path: Vec<String>,
+        out: BTreeMap<String, u64>,
+    }
+    impl ModuleVisitor for Collect {
+        fn enter_module(&mut self, name: &str, _: &str) {
+            self.path.push(name.to_string());
+        }
+        fn exit_module(&mut self, _: &str, _: &str) {
+            self.path.pop();
+        }
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            self.out.insert(self.path.join("."), param.id.val());
+        }
+    }
+    let mut c = Collect { path: Vec::new(), out: BTreeMap::new() };
+    net.visit(&mut c);
+    c.out
+}
+
 /// The safetensors bytes of `net` with its configuration.
 pub fn to_bytes(net: &EncoderNet, config: &NetworkConfig, precision: Precision) -> Result<Vec<u8>, NnError> {
+    to_bytes_with(net, config, precision, Vec::new())
+}
+
+/// [`to_bytes`] with more metadata entries (a checkpoint's step, its [`PARAM_IDS_KEY`]).
+pub fn to_bytes_with(
+    net: &EncoderNet,
+    config: &NetworkConfig,
+    precision: Precision,
+    extra: Vec<(String, String)>,
+) -> Result<Vec<u8>, NnError> {
     let tensors = named_tensors(net);
     let mut bytes: Vec<(String, Vec<usize>, Vec<u8>)> = Vec::with_capacity(tensors.len());
     for (name, dims, data) in tensors {
@@ -75,17 +111,22 @@ pub fn to_bytes(net: &EncoderNet, config: &NetworkConfig, precision: Precision) 
         })
         .collect::<Result<Vec<_>, NnError>>()?;
     let config_json = serde_json::to_string(config).map_err(|e| NnError::Weights(e.to_string()))?;
-    let metadata =
+    let mut metadata =
         HashMap::from([("format".to_string(), WEIGHTS_FORMAT.to_string()), ("config".to_string(), config_json)]);
+    metadata.extend(extra);
     safetensors::serialize(views, Some(metadata)).map_err(|e| NnError::Weights(e.to_string()))
 }
 
 /// Writes `net` to `path` (through a temporary file, so a reader never sees half a file).
 pub fn save(net: &EncoderNet, config: &NetworkConfig, precision: Precision, path: &Path) -> Result<(), NnError> {
-    let bytes = to_bytes(net, config, precision)?;
+    write_atomically(path, &to_bytes(net, config, precision)?)
+}
+
+/// Writes `bytes` to `path` through a temporary file beside it.
+pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), NnError> {
     let tmp = path.with_extension("safetensors.tmp");
     let io = |e: std::io::Error| NnError::Io { path: path.to_path_buf(), source: e };
-    std::fs::write(&tmp, &bytes).map_err(io)?;
+    std::fs::write(&tmp, bytes).map_err(io)?;
     std::fs::rename(&tmp, path).map_err(io)
 }
 
@@ -102,8 +143,17 @@ pub fn load(path: &Path, device: &Device) -> Result<(NetworkConfig, EncoderNet),
     from_bytes(&std::fs::read(path).map_err(io)?, device)
 }
 
-/// [`load`] from bytes.
+/// [`load`] from bytes. A file with [`PARAM_IDS_KEY`] gives its parameters those ids back.
 pub fn from_bytes(bytes: &[u8], device: &Device) -> Result<(NetworkConfig, EncoderNet), NnError> {
+    let (config, net, _) = from_bytes_with_metadata(bytes, device)?;
+    Ok((config, net))
+}
+
+/// [`from_bytes`], also returning the header's metadata.
+pub fn from_bytes_with_metadata(
+    bytes: &[u8],
+    device: &Device,
+) -> Result<(NetworkConfig, EncoderNet, HashMap<String, String>), NnError> {
     let bad = |m: String| NnError::Weights(m);
     let (_, header) = SafeTensors::read_metadata(bytes).map_err(|e| bad(format!("not a safetensors file: {e}")))?;
     let meta = header.metadata().clone().unwrap_or_default();
@@ -126,20 +176,34 @@ pub fn from_bytes(bytes: &[u8], device: &Device) -> Result<(NetworkConfig, Encod
         };
         stored.insert(name, (view.shape().to_vec(), data));
     }
+    let ids: Option<BTreeMap<String, u64>> = match meta.get(PARAM_IDS_KEY) {
+        Some(j) => Some(serde_json::from_str(j).map_err(|e| bad(format!("{PARAM_IDS_KEY}: {e}")))?),
+        None => None,
+    };
     let net = EncoderNet::new(&config, device);
-    let net = assign(net, stored, device)?;
-    Ok((config, net))
+    let net = assign_inner(net, stored, ids.as_ref(), device)?;
+    Ok((config, net, meta))
 }
 
 /// Replaces every tensor of `net` by the stored one of the same path and shape.
 pub fn assign(
     net: EncoderNet,
+    stored: BTreeMap<String, (Vec<usize>, Vec<f32>)>,
+    device: &Device,
+) -> Result<EncoderNet, NnError> {
+    assign_inner(net, stored, None, device)
+}
+
+fn assign_inner(
+    net: EncoderNet,
     mut stored: BTreeMap<String, (Vec<usize>, Vec<f32>)>,
+    ids: Option<&BTreeMap<String, u64>>,
     device: &Device,
 ) -> Result<EncoderNet, NnError> {
     struct Assign<'a> {
         path: Vec<String>,
         stored: &'a mut BTreeMap<String, (Vec<usize>, Vec<f32>)>,
+        ids: Option<&'a BTreeMap<String, u64>>,
         device: &'a Device,
         errors: Vec<String>,
     }
@@ -160,13 +224,19 @@ pub fn assign(
                 }
                 Some((_, data)) => {
                     let t = Tensor::<D>::from_data(TensorData::new(data, want), self.device);
-                    return param.map(|old| t.set_require_grad(old.is_require_grad()));
+                    return match self.ids.and_then(|m| m.get(&name)) {
+                        Some(&id) => {
+                            let require_grad = param.is_require_grad();
+                            Param::initialized(ParamId::from(id), t).set_require_grad(require_grad)
+                        }
+                        None => param.map(|old| t.set_require_grad(old.is_require_grad())),
+                    };
                 }
             }
             param
         }
     }
-    let mut a = Assign { path: Vec::new(), stored: &mut stored, device, errors: Vec::new() };
+    let mut a = Assign { path: Vec::new(), stored: &mut stored, ids, device, errors: Vec::new() };
     let net = net.map(&mut a);
     let mut errors = a.errors;
     errors.extend(stored.keys().map(|k| format!("{k}: not in the network")));

@@ -1,0 +1,39 @@
+//! Training of the encoder (DESIGN §7), the library behind `facerecon-train`.
+//!
+//! * [`data`] — batches of synthetic faces rendered by the engine with exact ground truth,
+//!   photo-like corruptions, and lower-resolution copies for the resolution-aware loss;
+//! * [`geometry`] — the decoder's geometry (shape, pose, crop projection) in burn tensors;
+//! * [`run`] — the loop (Adam, warm-up and piecewise-constant decay, progressive buckets),
+//!   checkpoints that resume, the JSON-lines log;
+//! * [`plot`] — the loss plot (PNG).
+//!
+//! Built: stage 1 (supervised on synthetic faces) with the resolution-consistency loss ℓ_s.
+//! Not yet: the self-supervised photometric stage, ℓ_f (InfoNCE) and the cross-pose
+//! SimSiam branch (see the encoder issue's notes).
+
+pub mod data;
+pub mod geometry;
+pub mod plot;
+pub mod run;
+
+pub use run::{LogEntry, RunSummary, StopEarly, TrainConfig, train, train_until};
+
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    #[error("invalid training settings: {0}")]
+    Config(String),
+    #[error("training data: {0}")]
+    Data(String),
+    #[error(transparent)]
+    Nn(#[from] facerecon_nn::NnError),
+    #[error("{}", path.display())]
+    Io {
+        path: std::path::PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("the loss diverged at step {step} ({loss}); lower the learning rate")]
+    Diverged { step: u64, loss: f64 },
+    #[error("loss plot: {0}")]
+    Plot(String),
+}

@@ -1,0 +1,124 @@
+//! `facerecon-train`: trains the encoder on synthetic faces (stage 1 of DESIGN §7).
+//!
+//! ```text
+//! facerecon-train --preset tiny --steps 200 --out runs/tiny     # minutes on 2 CPU cores
+//! facerecon-train --preset full --steps 100000 --out runs/v1    # the real network (GPU)
+//! ```
+//!
+//! Running it again with the same folder and settings resumes from the last checkpoint.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::Context;
+use burn::tensor::Device;
+use clap::{Parser, ValueEnum};
+use facerecon_model::MorphableModel;
+use facerecon_nn::NetworkConfig;
+use facerecon_train::{TrainConfig, train};
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum Preset {
+    /// The narrow network and a short schedule: for tests and 2-core machines.
+    Tiny,
+    /// DESIGN §7's network and schedule.
+    Full,
+}
+
+#[derive(Parser, Debug)]
+#[command(name = "facerecon-train", about = "Train the facerecon encoder on synthetic faces", version)]
+struct Args {
+    #[arg(long, value_enum, default_value = "tiny")]
+    preset: Preset,
+    /// Optimiser steps in all (a resumed run continues up to this).
+    #[arg(long, default_value_t = 200)]
+    steps: u64,
+    /// Run folder: run.json, log.jsonl, checkpoint, loss.png, encoder-f16.safetensors.
+    #[arg(long)]
+    out: PathBuf,
+    /// Faces per batch (each with a lower-resolution copy once the schedule adds buckets).
+    #[arg(long)]
+    batch: Option<usize>,
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Peak learning rate.
+    #[arg(long)]
+    lr: Option<f64>,
+    /// Face model file (default: ICT-FaceKit, built from the shared folder).
+    #[arg(long)]
+    model: Option<PathBuf>,
+    /// Print the summary as JSON on stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+fn main() -> ExitCode {
+    match run(Args::parse()) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("facerecon-train: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(args: Args) -> anyhow::Result<()> {
+    let model: std::sync::Arc<MorphableModel> = match &args.model {
+        Some(p) => {
+            std::sync::Arc::new(MorphableModel::load(p).with_context(|| format!("loading model {}", p.display()))?)
+        }
+        None => facerecon_model::ict::load_default().context("building the default ICT model")?,
+    };
+    let mut config = match args.preset {
+        Preset::Tiny => TrainConfig::tiny(NetworkConfig::tiny(&model)?, args.steps),
+        Preset::Full => TrainConfig::full(NetworkConfig::full(&model)?, args.steps),
+    };
+    if let Some(b) = args.batch {
+        config.batch_size = b;
+    }
+    if let Some(s) = args.seed {
+        config.seed = s;
+    }
+    if let Some(lr) = args.lr {
+        config.lr_peak = lr;
+        config.lr_start = config.lr_start.min(lr);
+    }
+    let device = Device::default();
+    eprintln!(
+        "facerecon-train: {:?} network, {} steps of {} faces, on {device:?}, into {}",
+        args.preset,
+        config.steps,
+        config.batch_size,
+        args.out.display()
+    );
+    let steps = config.steps;
+    let summary = train(&model, &config, &args.out, &device, |e| {
+        eprintln!(
+            "step {:>6}/{steps}  loss {:.4} (coef {:.4} shape {:.4} lmk {:.4} res {:.4})  landmarks {:.2} px  lr {:.1e}  {:.2} s",
+            e.step, e.total, e.coef, e.shape, e.landmarks, e.resolution, e.landmark_rms_px, e.lr, e.seconds
+        );
+    })?;
+    if let Some(from) = summary.resumed_from {
+        eprintln!("resumed from step {from}");
+    }
+    if summary.plot.is_none() {
+        eprintln!("no loss plot (no font: install fonts-dejavu-core); the log has every figure");
+    }
+    let report = serde_json::json!({
+        "steps": summary.steps_done,
+        "resumed_from": summary.resumed_from,
+        "first": summary.first,
+        "last": summary.last,
+        "weights": summary.weights,
+        "plot": summary.plot,
+    });
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        eprintln!("weights: {}", summary.weights.display());
+        if let Some(p) = &summary.plot {
+            eprintln!("loss plot: {}", p.display());
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,414 @@
+//! One training run: the loop, its learning-rate schedule, checkpoints that resume, the log
+//! and the loss plot.
+//!
+//! Stage 1 of DESIGN §7, supervised on synthetic faces: `ℓ = ℓ_coef + ℓ_shape + ℓ_lmk +
+//! λ_s·ℓ_s`, with
+//! * `ℓ_coef`: squared coefficient error, each coefficient divided by its natural unit
+//!   ([`loss_units`]);
+//! * `ℓ_shape`: mean squared model-space vertex error over the decoder's vertices, per 5 mm;
+//! * `ℓ_lmk`: mean squared reprojection error of the 68 landmarks in crop pixels, per 4 px;
+//! * `ℓ_s` (Eq. 5.6): between a face and its copy at a lower bucket `j`, weight `j − 0`, the
+//!   higher resolution's prediction held fixed (stop-gradient), λ_s = 0.5.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use burn::module::Module;
+use burn::optim::{AdamConfig, GradientsParams, decay::WeightDecayConfig};
+use burn::tensor::{Device, Int, Tensor, TensorData};
+use facerecon_model::MorphableModel;
+use facerecon_nn::weights::{self, PARAM_IDS_KEY, Precision};
+use facerecon_nn::{EncoderNet, Head, NetworkConfig};
+
+use crate::TrainError;
+use crate::data::{Augment, SyntheticFaces};
+use crate::geometry::GeometryDecoder;
+
+/// Everything a run is made of; written to `run.json` in the run folder.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct TrainConfig {
+    pub network: NetworkConfig,
+    pub steps: u64,
+    pub batch_size: usize,
+    pub seed: u64,
+    /// Linear warm-up from `lr_start` to `lr_peak` over `warmup_steps`, then `lr_peak`
+    /// multiplied by `lr_decay` at each milestone passed.
+    pub lr_start: f64,
+    pub lr_peak: f64,
+    pub warmup_steps: u64,
+    pub milestones: Vec<u64>,
+    pub lr_decay: f64,
+    pub weight_decay: f64,
+    /// Progressive resolution schedule: one lower bucket added every this many steps
+    /// (0: bucket 0 only).
+    pub bucket_every: u64,
+    pub lambda_s: f64,
+    pub augment: Augment,
+    /// Face vertices (besides the landmarks) the shape loss looks at.
+    pub shape_vertices: usize,
+    /// Cycle through this many faces instead of drawing new ones (a fixed set: the check
+    /// that the loop can fit what it sees). `None`: a new face every time.
+    #[serde(default)]
+    pub distinct_faces: Option<u64>,
+    pub log_every: u64,
+    pub checkpoint_every: u64,
+}
+
+impl TrainConfig {
+    /// DESIGN §7's schedule: Adam, batch 32, warm-up 1e-6 → 1e-4 over 10k steps, ×0.1 at
+    /// 60 % and 85 % of the run.
+    pub fn full(network: NetworkConfig, steps: u64) -> Self {
+        Self {
+            network,
+            steps,
+            batch_size: 32,
+            seed: 1,
+            lr_start: 1e-6,
+            lr_peak: 1e-4,
+            warmup_steps: 10_000.min(steps / 5),
+            milestones: vec![steps * 6 / 10, steps * 85 / 100],
+            lr_decay: 0.1,
+            weight_decay: 1e-4,
+            bucket_every: (steps / 8).max(1),
+            lambda_s: 0.5,
+            augment: Augment::default(),
+            shape_vertices: 400,
+            distinct_faces: None,
+            log_every: 10,
+            checkpoint_every: 500,
+        }
+    }
+
+    /// The tiny network with a short, fast-learning schedule: a run of a few minutes on two
+    /// CPU cores that must bring the loss down (the test's configuration).
+    pub fn tiny(network: NetworkConfig, steps: u64) -> Self {
+        Self {
+            batch_size: 8,
+            lr_start: 1e-4,
+            lr_peak: 2e-3,
+            warmup_steps: (steps / 10).max(1),
+            shape_vertices: 100,
+            log_every: 1,
+            checkpoint_every: (steps / 2).max(1),
+            ..Self::full(network, steps)
+        }
+    }
+
+    pub fn validate(&self) -> Result<(), TrainError> {
+        self.network.validate().map_err(|e| TrainError::Config(e.to_string()))?;
+        let bad = |m: String| Err(TrainError::Config(m));
+        if !(1..=1024).contains(&self.batch_size) {
+            return bad(format!("batch size {} outside 1..=1024", self.batch_size));
+        }
+        if !(self.lr_peak > 0.0 && self.lr_start > 0.0 && self.lr_peak < 1.0 && self.lr_start <= self.lr_peak) {
+            return bad(format!("learning rates {} → {}", self.lr_start, self.lr_peak));
+        }
+        if !(self.lr_decay > 0.0 && self.lr_decay <= 1.0 && (0.0..1.0).contains(&self.weight_decay)) {
+            return bad(format!("decay {} / weight decay {}", self.lr_decay, self.weight_decay));
+        }
+        if self.distinct_faces == Some(0) {
+            return bad("distinct faces must be ≥ 1".into());
+        }
+        if self.log_every == 0 || self.checkpoint_every == 0 {
+            return bad("log and checkpoint intervals must be ≥ 1".into());
+        }
+        Ok(())
+    }
+
+    /// Learning rate of step `s` (0-based).
+    pub fn learning_rate(&self, s: u64) -> f64 {
+        if s < self.warmup_steps {
+            return self.lr_start + (self.lr_peak - self.lr_start) * s as f64 / self.warmup_steps as f64;
+        }
+        let passed = self.milestones.iter().filter(|&&m| s >= m).count();
+        self.lr_peak * self.lr_decay.powi(passed as i32)
+    }
+
+    /// Lowest bucket paired copies may take at step `s` (progressive: 0, then 1, 2, 3).
+    pub fn lowest_bucket(&self, s: u64) -> usize {
+        s.checked_div(self.bucket_every).map_or(0, |b| (b as usize).min(3))
+    }
+}
+
+/// The loss terms of one step (batch means).
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct LogEntry {
+    pub step: u64,
+    pub lr: f64,
+    pub total: f64,
+    pub coef: f64,
+    pub shape: f64,
+    pub landmarks: f64,
+    pub resolution: f64,
+    /// RMS landmark error, crop pixels (a figure a person can read).
+    pub landmark_rms_px: f64,
+    pub seconds: f64,
+}
+
+/// What a finished (or stopped) run leaves.
+#[derive(Debug)]
+pub struct RunSummary {
+    pub steps_done: u64,
+    pub resumed_from: Option<u64>,
+    pub first: Option<LogEntry>,
+    pub last: Option<LogEntry>,
+    pub weights: PathBuf,
+    pub plot: Option<PathBuf>,
+}
+
+/// Each coefficient's natural unit for `ℓ_coef`: 1 σ for the PCA blocks, 0.25 for
+/// blendshape weights, 0.5 for SH weights, 0.1 rad for rotation, 5/5/20 mm for translation.
+pub fn loss_units(config: &NetworkConfig) -> Vec<f32> {
+    let mut u = Vec::with_capacity(config.output_size());
+    for h in Head::ALL {
+        let n = config.head_size(h);
+        match h {
+            Head::Expression if config.expression_unit_interval => u.extend(std::iter::repeat_n(0.25, n)),
+            Head::Light => u.extend(std::iter::repeat_n(0.5, n)),
+            Head::Rotation => u.extend([0.1; 3]),
+            Head::Translation => u.extend([5.0, 5.0, 20.0]),
+            _ => u.extend(std::iter::repeat_n(1.0, n)),
+        }
+    }
+    u
+}
+
+/// The run folder's files.
+pub struct RunFiles {
+    pub dir: PathBuf,
+}
+
+impl RunFiles {
+    pub fn checkpoint(&self) -> PathBuf {
+        self.dir.join("checkpoint.safetensors")
+    }
+    pub fn optimizer(&self) -> PathBuf {
+        self.dir.join("optimizer.bpk")
+    }
+    pub fn log(&self) -> PathBuf {
+        self.dir.join("log.jsonl")
+    }
+    pub fn config(&self) -> PathBuf {
+        self.dir.join("run.json")
+    }
+    pub fn weights(&self) -> PathBuf {
+        self.dir.join("encoder-f16.safetensors")
+    }
+    pub fn plot(&self) -> PathBuf {
+        self.dir.join("loss.png")
+    }
+}
+
+/// When to stop before the run's last step, with a checkpoint (a session's time limit on a
+/// lent machine, or a test's interruption). The run resumes from there.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct StopEarly {
+    pub after_step: Option<u64>,
+    pub after: Option<std::time::Duration>,
+}
+
+/// Trains (or resumes) a run in `dir`. `progress` sees every log entry.
+pub fn train(
+    model: &MorphableModel,
+    config: &TrainConfig,
+    dir: &Path,
+    device: &Device,
+    progress: impl FnMut(&LogEntry),
+) -> Result<RunSummary, TrainError> {
+    train_until(model, config, dir, device, StopEarly::default(), progress)
+}
+
+/// [`train`], stopping early as `stop` says.
+pub fn train_until(
+    model: &MorphableModel,
+    config: &TrainConfig,
+    dir: &Path,
+    device: &Device,
+    stop: StopEarly,
+    mut progress: impl FnMut(&LogEntry),
+) -> Result<RunSummary, TrainError> {
+    let started = Instant::now();
+    config.validate()?;
+    let files = RunFiles { dir: dir.to_path_buf() };
+    let io = |p: &Path| {
+        let p = p.to_path_buf();
+        move |e: std::io::Error| TrainError::Io { path: p.clone(), source: e }
+    };
+    std::fs::create_dir_all(dir).map_err(io(dir))?;
+
+    // Resume when the folder holds a run of the same configuration.
+    let autodiff = device.clone().autodiff();
+    let mut optimizer = AdamConfig::new()
+        .with_weight_decay((config.weight_decay > 0.0).then(|| WeightDecayConfig::new(config.weight_decay as f32)))
+        .init();
+    let (mut net, start, resumed_from) = if files.checkpoint().is_file() {
+        let stored: TrainConfig = read_json(&files.config())?;
+        if &stored != config {
+            return Err(TrainError::Config(format!(
+                "{} holds a run with another configuration; choose a new folder or the same settings",
+                dir.display()
+            )));
+        }
+        let bytes = std::fs::read(files.checkpoint()).map_err(io(&files.checkpoint()))?;
+        let (_, net, meta) = weights::from_bytes_with_metadata(&bytes, &autodiff)?;
+        let step: u64 = meta.get("step").and_then(|s| s.parse().ok()).ok_or_else(|| {
+            TrainError::Config(format!("{}: no step in the checkpoint", files.checkpoint().display()))
+        })?;
+        let opt = std::fs::read(files.optimizer()).map_err(io(&files.optimizer()))?;
+        optimizer = optimizer
+            .from_bytes(burn::tensor::Bytes::from_bytes_vec(opt))
+            .map_err(|e| TrainError::Config(format!("optimizer state: {e:?}")))?;
+        truncate_log(&files.log(), step)?;
+        (net, step, Some(step))
+    } else {
+        write_json(&files.config(), config)?;
+        let _ = std::fs::remove_file(files.log());
+        // The run's seed fixes the initial weights too (burn seeds per backend, globally).
+        autodiff.seed(config.seed);
+        (EncoderNet::new(&config.network, &autodiff), 0, None)
+    };
+
+    let data = SyntheticFaces::new(model, &config.network, config.augment.clone(), config.seed)?;
+    let geometry = GeometryDecoder::new(model, &config.network, config.shape_vertices, &autodiff);
+    let units = Tensor::<2>::from_data(
+        TensorData::new(loss_units(&config.network), [1, config.network.output_size()]),
+        &autodiff,
+    );
+    let mut log = std::fs::OpenOptions::new().create(true).append(true).open(files.log()).map_err(io(&files.log()))?;
+    let mut first = None;
+    let mut last = None;
+    let k = config.network.output_size();
+
+    let mut steps_done = config.steps;
+    for step in start..config.steps {
+        let t0 = Instant::now();
+        let batch = data.batch(step, config.batch_size, config.lowest_bucket(step), config.distinct_faces)?;
+        let n = batch.crops.len();
+        let (images, buckets) = batch.crops.tensors(&autodiff);
+        let target = Tensor::<2>::from_data(TensorData::new(batch.targets.clone(), [n, k]), &autodiff);
+        let pred = net.forward(images, buckets, &config.network).coefficients;
+
+        let coef = ((pred.clone() - target.clone()) / units.clone()).powf_scalar(2.0).mean();
+        let shape_err = geometry.shape(pred.clone()) - geometry.shape(target.clone());
+        let shape = shape_err.powf_scalar(2.0).sum_dim(2).mean() / 25.0;
+        let lmk_err = geometry.landmark_pixels(pred.clone()) - geometry.landmark_pixels(target);
+        let lmk_sq = lmk_err.powf_scalar(2.0).sum_dim(2).mean();
+        let landmarks = lmk_sq.clone() / 16.0;
+        let mut total = coef.clone() + shape.clone() + landmarks.clone();
+        let mut resolution_value = 0.0;
+        if !batch.pairs.is_empty() {
+            let idx = |f: fn(&(usize, usize, f32)) -> i64| {
+                let v: Vec<i64> = batch.pairs.iter().map(f).collect();
+                Tensor::<1, Int>::from_data(TensorData::new(v, [batch.pairs.len()]), &autodiff)
+            };
+            let high = pred.clone().select(0, idx(|p| p.0 as i64)).detach();
+            let low = pred.clone().select(0, idx(|p| p.1 as i64));
+            let w: Vec<f32> = batch.pairs.iter().map(|p| p.2).collect();
+            let w = Tensor::<2>::from_data(TensorData::new(w, [batch.pairs.len(), 1]), &autodiff);
+            let ls = (((low - high) / units.clone()).powf_scalar(2.0) * w).mean();
+            resolution_value = scalar(&ls);
+            total = total + ls * config.lambda_s;
+        }
+        let entry = LogEntry {
+            step: step + 1,
+            lr: config.learning_rate(step),
+            total: scalar(&total),
+            coef: scalar(&coef),
+            shape: scalar(&shape),
+            landmarks: scalar(&landmarks),
+            resolution: resolution_value,
+            landmark_rms_px: scalar(&lmk_sq).sqrt(),
+            seconds: 0.0,
+        };
+        if !entry.total.is_finite() {
+            return Err(TrainError::Diverged { step: step + 1, loss: entry.total });
+        }
+        let grads = GradientsParams::from_grads(total.backward(), &net);
+        net = optimizer.step(entry.lr, net, grads);
+        let entry = LogEntry { seconds: t0.elapsed().as_secs_f64(), ..entry };
+
+        if (step + 1) % config.log_every == 0 || step + 1 == config.steps {
+            writeln!(log, "{}", serde_json::to_string(&entry).unwrap_or_default()).map_err(io(&files.log()))?;
+            progress(&entry);
+        }
+        if first.is_none() {
+            first = Some(entry.clone());
+        }
+        last = Some(entry);
+        let stopping =
+            stop.after_step.is_some_and(|s| step + 1 >= s) || stop.after.is_some_and(|d| started.elapsed() >= d);
+        if (step + 1) % config.checkpoint_every == 0 || step + 1 == config.steps || stopping {
+            save_checkpoint(&files, &net, config, &optimizer, step + 1)?;
+        }
+        if stopping {
+            steps_done = step + 1;
+            break;
+        }
+    }
+
+    let inference = net.valid();
+    weights::save(&inference, &config.network, Precision::F16, &files.weights())?;
+    let entries = read_log(&files.log())?;
+    let plot = crate::plot::loss_plot(&entries, &files.plot()).ok().map(|_| files.plot());
+    Ok(RunSummary { steps_done, resumed_from, first, last, weights: files.weights(), plot })
+}
+
+fn scalar(t: &Tensor<1>) -> f64 {
+    t.clone()
+        .into_data()
+        .convert::<f64>()
+        .try_into_vec::<f64>()
+        .ok()
+        .and_then(|v| v.first().copied())
+        .unwrap_or(f64::NAN)
+}
+
+fn save_checkpoint(
+    files: &RunFiles,
+    net: &EncoderNet,
+    config: &TrainConfig,
+    optimizer: &burn::optim::ModuleOptimizer,
+    step: u64,
+) -> Result<(), TrainError> {
+    let ids = serde_json::to_string(&weights::param_ids(net)).map_err(|e| TrainError::Config(e.to_string()))?;
+    let bytes = weights::to_bytes_with(
+        net,
+        &config.network,
+        Precision::F32,
+        vec![("step".into(), step.to_string()), (PARAM_IDS_KEY.into(), ids)],
+    )?;
+    let opt = optimizer.into_bytes().map_err(|e| TrainError::Config(format!("optimizer state: {e:?}")))?;
+    // Optimizer first: a checkpoint file always has its optimizer state beside it.
+    weights::write_atomically(&files.optimizer(), &opt)?;
+    weights::write_atomically(&files.checkpoint(), &bytes)?;
+    Ok(())
+}
+
+fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<(), TrainError> {
+    let text = serde_json::to_string_pretty(value).map_err(|e| TrainError::Config(e.to_string()))?;
+    std::fs::write(path, text).map_err(|e| TrainError::Io { path: path.to_path_buf(), source: e })
+}
+
+fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, TrainError> {
+    let text = std::fs::read_to_string(path).map_err(|e| TrainError::Io { path: path.to_path_buf(), source: e })?;
+    serde_json::from_str(&text).map_err(|e| TrainError::Config(format!("{}: {e}", path.display())))
+}
+
+/// The log's entries.
+pub fn read_log(path: &Path) -> Result<Vec<LogEntry>, TrainError> {
+    let text = match std::fs::read_to_string(path) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => String::new(),
+        Err(e) => return Err(TrainError::Io { path: path.to_path_buf(), source: e }),
+    };
+    Ok(text.lines().filter_map(|l| serde_json::from_str(l).ok()).collect())
+}
+
+/// Drops log entries after `step` (written after the checkpoint a run resumes from).
+fn truncate_log(path: &Path, step: u64) -> Result<(), TrainError> {
+    let kept: Vec<String> =
+        read_log(path)?.into_iter().filter(|e| e.step <= step).filter_map(|e| serde_json::to_string(&e).ok()).collect();
+    let text = if kept.is_empty() { String::new() } else { kept.join("\n") + "\n" };
+    std::fs::write(path, text).map_err(|e| TrainError::Io { path: path.to_path_buf(), source: e })
+}
