@@ -175,6 +175,7 @@ fn fit_of(f: pb::Fit) -> Result<Fit, ClientError> {
     let refine = match pb::Refine::try_from(f.refine) {
         Ok(pb::Refine::Coarse) => Refine::Coarse,
         Ok(pb::Refine::Landmarks) => Refine::Landmarks,
+        Ok(pb::Refine::None) => Refine::None,
         _ => return Err(bad(format!("unexpected refine level {}", f.refine))),
     };
     let crop = f.crop.ok_or_else(|| bad("fit without crop"))?;
@@ -237,6 +238,8 @@ impl Face {
                 .collect(),
             camera: RecordCamera { fov_y_deg: fit.fov_y_deg, near_mm: fit.near_mm, far_mm: fit.far_mm },
             crop: fit.crop,
+            // The service fits from the landmark fit (it serves no encoder yet).
+            start: facerecon_recon::Start::Landmarks,
             crop_size: fit.crop_size,
             refine: fit.refine,
             photometric: fit.photometric,

@@ -5,7 +5,7 @@
 use facerecon_model::ErrorKind;
 use facerecon_model::mesh::{glb, obj, ply};
 use facerecon_recon::outputs;
-use facerecon_recon::{FaceSource, Options, ReconError, Reconstruction, Refine};
+use facerecon_recon::{FaceSource, Options, ReconError, Reconstruction, Refine, Start};
 use facerecon_vision::face::FaceBox;
 use tonic::Status;
 
@@ -49,6 +49,11 @@ pub fn validate(req: pb::ReconstructRequest, max_faces: u32) -> Result<Validated
                 "refine FULL (displacement maps) is not built yet; use LANDMARKS or COARSE",
             ));
         }
+        Ok(pb::Refine::None) => {
+            return Err(Status::unimplemented(
+                "refine NONE (the learned encoder alone) is not served yet; use LANDMARKS or COARSE",
+            ));
+        }
         Err(_) => return Err(Status::invalid_argument(format!("unknown refine value {}", o.refine))),
     };
     let max = match o.max_faces {
@@ -85,7 +90,7 @@ pub fn validate(req: pb::ReconstructRequest, max_faces: u32) -> Result<Validated
     Ok(Validated {
         id: req.id,
         image: req.image,
-        options: Options { refine, faces, max_faces: max as usize },
+        options: Options { start: Start::Landmarks, refine, faces, max_faces: max as usize },
         wanted: Wanted {
             mesh_arrays: out.mesh_arrays,
             mesh_files,
@@ -118,6 +123,7 @@ fn point(p: [f32; 2]) -> pb::Point {
 
 fn refine(r: Refine) -> pb::Refine {
     match r {
+        Refine::None => pb::Refine::None,
         Refine::Landmarks => pb::Refine::Landmarks,
         Refine::Coarse => pb::Refine::Coarse,
     }

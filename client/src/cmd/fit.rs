@@ -1,5 +1,5 @@
-//! `facerecon fit IMAGE… -o DIR [--refine landmarks] [--json] [--pts]`: 3D faces from
-//! photos, in-process. Per face `K` (1-based, largest first) of `<stem>`, in `DIR`:
+//! `facerecon fit IMAGE… -o DIR [--refine landmarks] [--encoder W] [--json] [--pts]`: 3D
+//! faces from photos, in-process. Per face `K` (1-based, largest first) of `<stem>`, in `DIR`:
 //! `<stem>-face<K>.glb`, `.ply`, `.obj` (+ `.mtl`), `.json` (coefficients, landmarks,
 //! residuals), and per photo `<stem>-overlay.png` and `<stem>-sidebyside.png` (photo |
 //! reconstruction | shape | albedo | shading, a row per face). `--json` prints one line per photo.
@@ -13,7 +13,7 @@ use anyhow::Context;
 use super::{ImageJson, files};
 use facerecon_model::MorphableModel;
 use facerecon_recon::outputs;
-use facerecon_recon::{FaceSource, Options, Pipeline, Refine};
+use facerecon_recon::{FaceSource, Options, Pipeline, Refine, Start};
 use facerecon_vision::pipeline::FrontEnd;
 
 #[derive(clap::Args)]
@@ -26,10 +26,16 @@ pub struct FitArgs {
     out: PathBuf,
     /// How far to reconstruct: `landmarks` (pose, identity and expression from the 68
     /// landmarks, milliseconds) or `coarse` (then every coefficient, albedo and light
-    /// included, by the photometric fit: about a second per face). `full` (displacement
-    /// maps) is not built yet.
-    #[arg(long, value_enum, default_value = "landmarks")]
-    refine: RefineArg,
+    /// included, by the photometric fit: about a second per face). With `--encoder`:
+    /// `none` (the encoder alone) or `coarse` (the photometric fit from the encoder's
+    /// answer). `full` (displacement maps) is not built yet. Default: `landmarks`, or
+    /// `none` with `--encoder`.
+    #[arg(long, value_enum)]
+    refine: Option<RefineArg>,
+    /// Start from the learned encoder of this weights file (`facerecon-train` writes
+    /// `encoder-f16.safetensors`), run by ONNX Runtime on the CPU.
+    #[arg(long)]
+    encoder: Option<PathBuf>,
     /// One JSON object per photo on stdout (one per line).
     #[arg(long)]
     json: bool,
@@ -52,6 +58,7 @@ pub struct FitArgs {
 
 #[derive(Clone, Copy, clap::ValueEnum)]
 enum RefineArg {
+    None,
     Landmarks,
     Coarse,
 }
@@ -76,7 +83,13 @@ pub fn run(args: FitArgs) -> anyhow::Result<ExitCode> {
         None => facerecon_model::ict::load_default().context("building the default ICT model")?,
     };
     let front = FrontEnd::load_standard(&args.landmark_model)?;
-    let pipeline = Pipeline::new(model, front)?;
+    let mut pipeline = Pipeline::new(model, front)?;
+    if let Some(w) = &args.encoder {
+        let runtime = facerecon_vision::onnx::OnnxRuntimeConfig { intra_op_threads: 2, ..Default::default() };
+        let encoder = facerecon_nn::OrtEncoder::load(w, &runtime)
+            .with_context(|| format!("loading the encoder {}", w.display()))?;
+        pipeline.set_encoder(std::sync::Arc::new(encoder))?;
+    }
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let bar = (args.images.len() > 1).then(|| {
         indicatif::ProgressBar::new(args.images.len() as u64).with_style(
@@ -118,11 +131,13 @@ fn one(pipeline: &Pipeline, args: &FitArgs, path: &Path) -> anyhow::Result<()> {
     } else {
         FaceSource::Detect
     };
-    let refine = match args.refine {
-        RefineArg::Landmarks => Refine::Landmarks,
-        RefineArg::Coarse => Refine::Coarse,
+    let start = if args.encoder.is_some() { Start::Encoder } else { Start::Landmarks };
+    let refine = match (args.refine, start) {
+        (None, Start::Encoder) | (Some(RefineArg::None), _) => Refine::None,
+        (None, Start::Landmarks) | (Some(RefineArg::Landmarks), _) => Refine::Landmarks,
+        (Some(RefineArg::Coarse), _) => Refine::Coarse,
     };
-    let options = Options { refine, faces, max_faces: args.max_faces };
+    let options = Options { start, refine, faces, max_faces: args.max_faces };
     let recon = pipeline.reconstruct(&bytes, &options)?;
     let model = pipeline.model();
     let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "image".into());

@@ -7,9 +7,11 @@
 //! landmark fit in it ([`facerecon_fit::LandmarkFitter`]) → results mapped back to image
 //! pixels. Meshes and pictures are made on demand from a result ([`outputs`]).
 //!
-//! Refinement levels: [`Refine::Landmarks`] (milliseconds) and [`Refine::Coarse`] (the
-//! photometric fit on the face's crop, about a second); the displacement stage comes with
-//! the fitting work still open.
+//! Where a face's coefficients start ([`Start`]): the landmark fit, or the learned encoder
+//! ([`facerecon_nn::Encoder`], one batch per photo). Refinement levels: [`Refine::None`]
+//! (the encoder's answer as it is), [`Refine::Landmarks`] (the landmark fit, milliseconds)
+//! and [`Refine::Coarse`] (the photometric fit on the face's crop from the start, about a
+//! second); the displacement stage comes with the fitting work still open.
 
 pub mod outputs;
 
@@ -18,6 +20,7 @@ use std::sync::Arc;
 use facerecon_fit::photometric::{self, PhotometricSettings};
 use facerecon_fit::{FitError, LandmarkFit, LandmarkFitter};
 use facerecon_model::{Coefficients, ErrorKind, Extent, MorphableModel};
+use facerecon_nn::{CropBatch, Encoder};
 use facerecon_vision::crop::{self, Bucket, CROP_SIZE, CropTransform};
 use facerecon_vision::decode::{self, DecodeLimits};
 use facerecon_vision::face::FaceBox;
@@ -29,11 +32,24 @@ use rayon::prelude::*;
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Refine {
+    /// The start as it is (with [`Start::Encoder`]: the encoder alone).
+    None,
     /// Pose, identity and expression from the 68 landmarks (milliseconds per face).
     #[default]
     Landmarks,
     /// Then all coefficients (albedo and light too) by the photometric fit on the crop.
     Coarse,
+}
+
+/// Where a face's coefficients start.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Start {
+    /// The landmark fit.
+    #[default]
+    Landmarks,
+    /// The learned encoder on the face's crop (needs [`Pipeline::set_encoder`]).
+    Encoder,
 }
 
 /// Where the faces come from.
@@ -51,6 +67,7 @@ pub enum FaceSource {
 /// What to reconstruct.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Options {
+    pub start: Start,
     pub refine: Refine,
     pub faces: FaceSource,
     /// At most this many faces per photo (largest first when detected).
@@ -59,7 +76,7 @@ pub struct Options {
 
 impl Default for Options {
     fn default() -> Self {
-        Options { refine: Refine::Landmarks, faces: FaceSource::Detect, max_faces: 16 }
+        Options { start: Start::Landmarks, refine: Refine::Landmarks, faces: FaceSource::Detect, max_faces: 16 }
     }
 }
 
@@ -71,6 +88,8 @@ pub enum ReconError {
     FrontEnd(FrontEndError),
     #[error("invalid options: {0}")]
     Options(String),
+    #[error("encoder: {0}")]
+    Encoder(String),
 }
 
 impl ReconError {
@@ -79,6 +98,7 @@ impl ReconError {
         match self {
             ReconError::FrontEnd(e) => e.kind(),
             ReconError::Options(_) => ErrorKind::Input,
+            ReconError::Encoder(_) => ErrorKind::Internal,
         }
     }
 }
@@ -103,12 +123,15 @@ pub struct FaceRecon {
 /// A fitted face.
 #[derive(Clone, Debug)]
 pub struct FaceFit {
+    /// Where the coefficients started.
+    pub start: Start,
     /// The level reached.
     pub refine: Refine,
     /// The final coefficients, in the crop camera's frame (DESIGN §4's camera on the 224²
     /// crop).
     pub coefficients: Coefficients,
-    /// The landmark fit (the start of the photometric fit).
+    /// The landmark fit (the start of the photometric fit unless the encoder gave one; its
+    /// contour-aware landmark vertices serve either way).
     pub landmark_fit: LandmarkFit,
     /// Iterations, first and last loss, and the final mean absolute colour difference of
     /// the photometric fit (at [`Refine::Coarse`]).
@@ -153,6 +176,7 @@ pub struct Pipeline {
     fitter: LandmarkFitter,
     pub limits: DecodeLimits,
     pub photometric: PhotometricSettings,
+    encoder: Option<Arc<dyn Encoder>>,
 }
 
 impl Pipeline {
@@ -164,7 +188,27 @@ impl Pipeline {
             fitter,
             limits: DecodeLimits::default(),
             photometric: PhotometricSettings::default(),
+            encoder: None,
         })
+    }
+
+    /// Loads the encoder [`Start::Encoder`] uses. Its coefficient layout must be the model's.
+    pub fn set_encoder(&mut self, encoder: Arc<dyn Encoder>) -> Result<(), ReconError> {
+        let c = encoder.config();
+        if c.layout != self.model.layout() || c.input_size != CROP_SIZE as usize {
+            return Err(ReconError::Options(format!(
+                "the encoder ({:?}, {} px) does not match the model ({:?}, {CROP_SIZE} px crops)",
+                c.layout,
+                c.input_size,
+                self.model.layout()
+            )));
+        }
+        self.encoder = Some(encoder);
+        Ok(())
+    }
+
+    pub fn encoder(&self) -> Option<&Arc<dyn Encoder>> {
+        self.encoder.as_ref()
     }
 
     pub fn model(&self) -> &Arc<MorphableModel> {
@@ -193,9 +237,43 @@ impl Pipeline {
 
     /// Reconstructs every face of a decoded image.
     pub fn reconstruct_image(&self, image: RgbImage, options: &Options) -> Result<Reconstruction, ReconError> {
+        self.check_start(options)?;
         let faces = self.find_faces(&image, options)?;
-        let faces = faces.into_par_iter().map(|face| self.fit_face(&image, face, options.refine)).collect();
+        let starts = match options.start {
+            Start::Landmarks => vec![None; faces.len()],
+            Start::Encoder => self.encode(&image, &faces)?,
+        };
+        let faces = faces
+            .into_par_iter()
+            .zip(starts)
+            .map(|(face, start)| self.fit_face_from(&image, face, options.refine, start))
+            .collect();
         Ok(Reconstruction { image, faces })
+    }
+
+    /// Refuses start and refinement levels that do not go together.
+    fn check_start(&self, options: &Options) -> Result<(), ReconError> {
+        let bad = |m: &str| Err(ReconError::Options(m.into()));
+        match (options.start, options.refine) {
+            (Start::Encoder, _) if self.encoder.is_none() => bad("no encoder is loaded"),
+            (Start::Encoder, Refine::Landmarks) => bad("with the encoder, refine none or coarse"),
+            (Start::Landmarks, Refine::None) => bad("refine none is the encoder alone: start from the encoder"),
+            _ => Ok(()),
+        }
+    }
+
+    /// The encoder's coefficients for each face (`None` for faces too small to reconstruct),
+    /// one batch for the photo.
+    fn encode(&self, image: &RgbImage, faces: &[Face]) -> Result<Vec<Option<Coefficients>>, ReconError> {
+        let Some(encoder) = &self.encoder else { return Ok(vec![None; faces.len()]) };
+        let crops: Vec<_> = faces
+            .par_iter()
+            .filter(|f| f.bucket != Bucket::TooSmall)
+            .map(|f| crop::crop_face(image, &f.landmark_box))
+            .collect();
+        let batch = CropBatch::from_crops(&crops).map_err(|e| ReconError::Encoder(e.to_string()))?;
+        let mut out = encoder.encode(&batch).map_err(|e| ReconError::Encoder(e.to_string()))?.into_iter();
+        Ok(faces.iter().map(|f| if f.bucket == Bucket::TooSmall { None } else { out.next() }).collect())
     }
 
     /// The faces to reconstruct, largest first: detected, or from the caller's boxes or
@@ -222,14 +300,25 @@ impl Pipeline {
         })
     }
 
-    /// The fit of one face in its crop frame, to the level asked.
+    /// The fit of one face in its crop frame, to the level asked, from the landmark fit.
     pub fn fit_face(&self, image: &RgbImage, face: Face, refine: Refine) -> FaceRecon {
+        self.fit_face_from(image, face, refine, None)
+    }
+
+    /// [`Self::fit_face`] from `start` (the encoder's coefficients) when given.
+    pub fn fit_face_from(
+        &self,
+        image: &RgbImage,
+        face: Face,
+        refine: Refine,
+        start: Option<Coefficients>,
+    ) -> FaceRecon {
         let (left, top, side) = crop::crop_square(&face.landmark_box);
         let crop = CropTransform::from_square(left, top, side.max(1e-3), CROP_SIZE);
         let fit = if face.bucket == Bucket::TooSmall {
             Err(FaceError::TooSmall { side })
         } else {
-            self.fit_in_crop(image, &face, &crop, refine)
+            self.fit_in_crop(image, &face, &crop, refine, start)
         };
         FaceRecon { face, crop, fit }
     }
@@ -240,23 +329,20 @@ impl Pipeline {
         face: &Face,
         crop: &CropTransform,
         refine: Refine,
+        start: Option<Coefficients>,
     ) -> Result<FaceFit, FaceError> {
         let pts: Vec<[f32; 2]> = face.landmarks.points.iter().map(|p| crop.to_crop(*p)).collect();
         let landmark_fit =
             self.fitter.fit(&pts, Some(&face.landmarks.confidence)).map_err(|e| FaceError::Fit(e.to_string()))?;
+        let start_kind = if start.is_some() { Start::Encoder } else { Start::Landmarks };
+        let start = start.unwrap_or_else(|| landmark_fit.coefficients.clone());
         let (coefficients, photometric) = match refine {
-            Refine::Landmarks => (landmark_fit.coefficients.clone(), None),
+            Refine::None | Refine::Landmarks => (start, None),
             Refine::Coarse => {
                 let crop_image = crop::crop_face(image, &face.landmark_box).image;
-                let p = photometric::fit(
-                    &self.model,
-                    &crop_image,
-                    &pts,
-                    &landmark_fit.vertices,
-                    &landmark_fit.coefficients,
-                    &self.photometric,
-                )
-                .map_err(|e| FaceError::Fit(e.to_string()))?;
+                let p =
+                    photometric::fit(&self.model, &crop_image, &pts, &landmark_fit.vertices, &start, &self.photometric)
+                        .map_err(|e| FaceError::Fit(e.to_string()))?;
                 let summary = PhotometricSummary {
                     iterations: p.iterations,
                     loss_start: p.losses.first().copied().unwrap_or(f64::NAN),
@@ -275,7 +361,15 @@ impl Pipeline {
             .map(|(a, b)| (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2))
             .sum();
         let landmark_rms_px = (sq / fitted_landmarks.len().max(1) as f32).sqrt();
-        Ok(FaceFit { refine, coefficients, landmark_fit, photometric, fitted_landmarks, landmark_rms_px })
+        Ok(FaceFit {
+            start: start_kind,
+            refine,
+            coefficients,
+            landmark_fit,
+            photometric,
+            fitted_landmarks,
+            landmark_rms_px,
+        })
     }
 
     /// Model vertices under `c` projected into the image through the crop camera.

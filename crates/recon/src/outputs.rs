@@ -44,6 +44,9 @@ pub struct FaceRecord {
     pub camera: RecordCamera,
     pub crop: CropTransform,
     pub crop_size: u32,
+    /// Where the coefficients started (the landmark fit, or the learned encoder).
+    #[serde(default)]
+    pub start: crate::Start,
     pub refine: crate::Refine,
     /// What the photometric fit did (`null` at the landmark level).
     pub photometric: Option<crate::PhotometricSummary>,
@@ -91,6 +94,7 @@ pub fn face_record(model: &MorphableModel, face: &FaceRecon) -> Option<FaceRecor
         camera: RecordCamera { fov_y_deg: cam.fov_y.to_degrees(), near_mm: cam.near, far_mm: cam.far },
         crop: face.crop,
         crop_size: CROP_SIZE,
+        start: fit.start,
         refine: fit.refine,
         photometric: fit.photometric,
         residuals: Residuals {
