@@ -92,26 +92,45 @@ impl NetworkConfig {
         if !(32..=1024).contains(&self.input_size) || !self.input_size.is_multiple_of(32) {
             return bad(format!("input size {}: a multiple of 32 in 32..=1024", self.input_size));
         }
-        if !(1..=512).contains(&self.width) {
-            return bad(format!("width {} outside 1..=512", self.width));
+        if !(1..=128).contains(&self.width) {
+            return bad(format!("width {} outside 1..=128", self.width));
         }
-        if self.pose_features == 0 || self.pose_features >= self.expansion || self.expansion > 8192 {
+        if self.pose_features == 0 || self.pose_features >= self.expansion || self.expansion > 4096 {
             return bad(format!(
-                "expansion {} with {} pose features: need 0 < pose < expansion ≤ 8192",
+                "expansion {} with {} pose features: need 0 < pose < expansion ≤ 4096",
                 self.expansion, self.pose_features
             ));
         }
-        if !(1..=8192).contains(&self.head_hidden) {
-            return bad(format!("head hidden size {} outside 1..=8192", self.head_hidden));
+        if !(1..=2048).contains(&self.head_hidden) {
+            return bad(format!("head hidden size {} outside 1..=2048", self.head_hidden));
         }
         let l = self.layout;
-        if l.identity > 10_000 || l.expression > 10_000 || l.albedo > 10_000 {
+        if l.identity > 1000 || l.expression > 1000 || l.albedo > 1000 {
             return bad(format!("coefficient layout {l:?} too large"));
         }
         if !(self.neutral_distance_mm > 10.0 && self.neutral_distance_mm < 1e5) {
             return bad(format!("neutral distance {} mm", self.neutral_distance_mm));
         }
         Ok(())
+    }
+
+    /// Weights of the convolutions and dense layers (batch norms and α left out): what a
+    /// weights file must hold, known before anything is allocated.
+    pub fn parameter_count(&self) -> usize {
+        let w = self.width;
+        let mut n = 3 * w * 49;
+        let mut cin = w;
+        for stage in 0..4 {
+            let c = w << stage;
+            n += 9 * cin * c + 9 * c * c + if cin != c || stage > 0 { cin * c } else { 0 };
+            n += 18 * c * c;
+            cin = c;
+        }
+        n += cin * self.expansion;
+        for h in Head::ALL {
+            n += (self.head_input(h) + 1) * self.head_hidden + (self.head_hidden + 1) * self.head_size(h);
+        }
+        n
     }
 
     /// Outputs of a head.

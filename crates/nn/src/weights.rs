@@ -164,6 +164,18 @@ pub fn from_bytes_with_metadata(
     let config: NetworkConfig = serde_json::from_str(meta.get("config").map(String::as_str).unwrap_or(""))
         .map_err(|e| bad(format!("configuration: {e}")))?;
     config.validate()?;
+    // A small file must not make us build a large network: the tensors it holds must be
+    // able to fill the configured one before anything is allocated.
+    let stored_values = header
+        .tensors()
+        .values()
+        .fold(0usize, |a, t| a.saturating_add(t.shape.iter().fold(1usize, |p, &d| p.saturating_mul(d))));
+    if config.parameter_count() > stored_values {
+        return Err(bad(format!(
+            "the configuration needs {} weights, the file holds {stored_values}",
+            config.parameter_count()
+        )));
+    }
     let file = SafeTensors::deserialize(bytes).map_err(|e| bad(e.to_string()))?;
     let mut stored: BTreeMap<String, (Vec<usize>, Vec<f32>)> = BTreeMap::new();
     for (name, view) in file.tensors() {

@@ -83,6 +83,7 @@ fn a_new_network_starts_at_the_mean_face_in_front_of_the_camera_lit() {
         assert!((c.light[0][0] - neutral.light[0][0]).abs() < 0.05);
     }
     // ICT: the face fills a 224-px crop at 30° fov about half a metre away.
+    eprintln!("neutral distance {:.0} mm", config.neutral_distance_mm);
     assert!((300.0..900.0).contains(&config.neutral_distance_mm), "{}", config.neutral_distance_mm);
 }
 
@@ -195,6 +196,59 @@ fn bad_weights_and_bad_crops_are_clear_errors() {
     let e = enc.encode(&CropBatch::new(96)).unwrap_err();
     assert!(matches!(e, NnError::Input(_)), "{e}");
     assert!(enc.encode(&CropBatch::new(config.input_size)).unwrap().is_empty());
+}
+
+#[test]
+fn the_weights_parser_survives_mutated_files() {
+    // Truncations, bit flips and header edits of a valid file, a few thousand of them: each
+    // loads or gives a Weights error, never a panic or a network larger than the file.
+    let config = tiny();
+    let device = Device::default();
+    let bytes = weights::to_bytes(&EncoderNet::new(&config, &device), &config, Precision::F16).unwrap();
+    let (n, _) = safetensors::SafeTensors::read_metadata(&bytes).unwrap();
+    let mut state = 0x9E37_79B9_7F4A_7C15u64;
+    let mut next = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    };
+    let mut loaded = 0;
+    for i in 0..3000 {
+        let mut b = bytes.clone();
+        match i % 4 {
+            0 => b.truncate(next() as usize % b.len()),
+            // Inside the header (JSON), where a flip changes a shape, an offset or the config.
+            1 => b[8 + next() as usize % n] ^= 1 << (next() % 8),
+            2 => {
+                let at = next() as usize % b.len();
+                b[at] = next() as u8;
+            }
+            _ => {
+                // Replace a digit of the header with another digit.
+                let header = &mut b[8..8 + n];
+                let digits: Vec<usize> = (0..header.len()).filter(|&k| header[k].is_ascii_digit()).collect();
+                let k = digits[next() as usize % digits.len()];
+                header[k] = b'0' + (next() % 10) as u8;
+            }
+        }
+        match weights::from_bytes(&b, &device) {
+            Ok(_) => loaded += 1,
+            Err(NnError::Weights(_) | NnError::Config(_)) => {}
+            Err(e) => panic!("mutation {i}: unexpected error kind {e}"),
+        }
+    }
+    eprintln!("{loaded} of 3000 mutated files still loaded (data-only changes)");
+    // The analytic weight count is what a network of the configuration holds.
+    for c in [tiny(), NetworkConfig::full(model()).unwrap()] {
+        let net = EncoderNet::new(&c, &device);
+        let held: usize = weights::named_tensors(&net)
+            .iter()
+            .filter(|(name, _, _)| name.ends_with("weight") || name.ends_with("bias"))
+            .map(|(_, _, d)| d.len())
+            .sum();
+        assert_eq!(c.parameter_count(), held, "width {}", c.width);
+    }
 }
 
 fn ort_runtime() -> Option<OnnxRuntimeConfig> {
