@@ -108,27 +108,32 @@ pub trait Encoder: Send + Sync {
 
     fn config(&self) -> &NetworkConfig;
 
+    /// The network on a non-empty batch of the right crop size: `[N, output_size]`, flat.
+    fn run(&self, batch: &CropBatch) -> Result<Vec<f32>, NnError>;
+
     /// One output row per crop, [`crate::config::Head::ALL`] order.
-    fn encode_rows(&self, batch: &CropBatch) -> Result<Vec<Vec<f32>>, NnError>;
+    fn encode_rows(&self, batch: &CropBatch) -> Result<Vec<Vec<f32>>, NnError> {
+        let config = self.config();
+        if batch.size != config.input_size {
+            return Err(NnError::Input(format!(
+                "crops of {} px, the encoder takes {} px",
+                batch.size, config.input_size
+            )));
+        }
+        if batch.is_empty() {
+            return Ok(Vec::new());
+        }
+        let (data, n, k) = (self.run(batch)?, batch.len(), config.output_size());
+        if data.len() != n * k {
+            return Err(NnError::Shape(format!("{} outputs for {n} crops of {k}", data.len())));
+        }
+        Ok(data.chunks_exact(k).map(<[f32]>::to_vec).collect())
+    }
 
     /// One set of coefficients per crop.
     fn encode(&self, batch: &CropBatch) -> Result<Vec<Coefficients>, NnError> {
         self.encode_rows(batch)?.iter().map(|r| self.config().coefficients(r)).collect()
     }
-}
-
-fn check_batch(config: &NetworkConfig, batch: &CropBatch) -> Result<(), NnError> {
-    if batch.size != config.input_size {
-        return Err(NnError::Input(format!("crops of {} px, the encoder takes {} px", batch.size, config.input_size)));
-    }
-    Ok(())
-}
-
-fn split_rows(data: Vec<f32>, n: usize, k: usize) -> Result<Vec<Vec<f32>>, NnError> {
-    if data.len() != n * k {
-        return Err(NnError::Shape(format!("{} outputs for {n} crops of {k}", data.len())));
-    }
-    Ok(data.chunks_exact(k).map(<[f32]>::to_vec).collect())
 }
 
 /// The burn network, weights loaded once, on one device.
@@ -163,16 +168,10 @@ impl Encoder for BurnEncoder {
         &self.config
     }
 
-    fn encode_rows(&self, batch: &CropBatch) -> Result<Vec<Vec<f32>>, NnError> {
-        check_batch(&self.config, batch)?;
-        if batch.is_empty() {
-            return Ok(Vec::new());
-        }
+    fn run(&self, batch: &CropBatch) -> Result<Vec<f32>, NnError> {
         let (images, buckets) = batch.tensors(&self.device);
         let out = self.net.forward(images, buckets, &self.config).coefficients;
-        let data =
-            out.into_data().convert::<f32>().try_into_vec::<f32>().map_err(|e| NnError::Shape(format!("{e:?}")))?;
-        split_rows(data, batch.len(), self.config.output_size())
+        out.into_data().convert::<f32>().try_into_vec::<f32>().map_err(|e| NnError::Shape(format!("{e:?}")))
     }
 }
 
@@ -208,11 +207,7 @@ impl Encoder for OrtEncoder {
         &self.config
     }
 
-    fn encode_rows(&self, batch: &CropBatch) -> Result<Vec<Vec<f32>>, NnError> {
-        check_batch(&self.config, batch)?;
-        if batch.is_empty() {
-            return Ok(Vec::new());
-        }
+    fn run(&self, batch: &CropBatch) -> Result<Vec<f32>, NnError> {
         let (n, s) = (batch.len(), batch.size);
         let run = |e: ort::Error| NnError::Runtime(e.to_string());
         let images = ort::value::Tensor::from_array(([n, 3, s, s], batch.pixels.clone())).map_err(run)?;
@@ -224,6 +219,6 @@ impl Encoder for OrtEncoder {
         let value =
             outputs.get(crate::onnx::OUTPUT).ok_or_else(|| NnError::Runtime("no coefficients output".into()))?;
         let (_, data) = value.try_extract_tensor::<f32>().map_err(run)?;
-        split_rows(data.to_vec(), n, self.config.output_size())
+        Ok(data.to_vec())
     }
 }

@@ -31,52 +31,51 @@ pub enum Precision {
     F16,
 }
 
-/// Every float tensor of `net` (parameters and batch-norm running statistics) by path.
-pub fn named_tensors(net: &EncoderNet) -> Vec<(String, Vec<usize>, Vec<f32>)> {
-    struct Collect {
-        path: Vec<String>,
-        out: Vec<(String, Vec<usize>, Vec<f32>)>,
+/// Walks every float tensor of a network (parameters and batch-norm running statistics)
+/// with its module path.
+struct Collect {
+    path: Vec<String>,
+    with_data: bool,
+    tensors: Vec<(String, Vec<usize>, Vec<f32>)>,
+    ids: BTreeMap<String, u64>,
+}
+
+impl Collect {
+    fn run(net: &EncoderNet, with_data: bool) -> Self {
+        let mut c = Collect { path: Vec::new(), with_data, tensors: Vec::new(), ids: BTreeMap::new() };
+        net.visit(&mut c);
+        c
     }
-    impl ModuleVisitor for Collect {
-        fn enter_module(&mut self, name: &str, _: &str) {
-            self.path.push(name.to_string());
-        }
-        fn exit_module(&mut self, _: &str, _: &str) {
-            self.path.pop();
-        }
-        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+}
+
+impl ModuleVisitor for Collect {
+    fn enter_module(&mut self, name: &str, _: &str) {
+        self.path.push(name.to_string());
+    }
+    fn exit_module(&mut self, _: &str, _: &str) {
+        self.path.pop();
+    }
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        let name = self.path.join(".");
+        self.ids.insert(name.clone(), param.id.val());
+        if self.with_data {
             let t = param.val();
             let dims = t.dims().to_vec();
             // A tensor of this module's own making is always f32 and readable.
             let data = t.into_data().convert::<f32>().try_into_vec::<f32>().unwrap_or_default();
-            self.out.push((self.path.join("."), dims, data));
+            self.tensors.push((name, dims, data));
         }
     }
-    let mut c = Collect { path: Vec::new(), out: Vec::new() };
-    net.visit(&mut c);
-    c.out
 }
 
-/// The parameter id of every trainable tensor, by path.
+/// Every float tensor of `net` (parameters and batch-norm running statistics) by path.
+pub fn named_tensors(net: &EncoderNet) -> Vec<(String, Vec<usize>, Vec<f32>)> {
+    Collect::run(net, true).tensors
+}
+
+/// The parameter id of every tensor, by path.
 pub fn param_ids(net: &EncoderNet) -> BTreeMap<String, u64> {
-    struct Collect {
-        path: Vec<String>,
-        out: BTreeMap<String, u64>,
-    }
-    impl ModuleVisitor for Collect {
-        fn enter_module(&mut self, name: &str, _: &str) {
-            self.path.push(name.to_string());
-        }
-        fn exit_module(&mut self, _: &str, _: &str) {
-            self.path.pop();
-        }
-        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
-            self.out.insert(self.path.join("."), param.id.val());
-        }
-    }
-    let mut c = Collect { path: Vec::new(), out: BTreeMap::new() };
-    net.visit(&mut c);
-    c.out
+    Collect::run(net, false).ids
 }
 
 /// The safetensors bytes of `net` with its configuration.
