@@ -5,7 +5,7 @@
 use facerecon_model::coeffs::SH_COEFFS;
 use facerecon_model::{Coefficients, Mesh};
 use facerecon_proto::v1 as pb;
-use facerecon_recon::{PhotometricSummary, Refine};
+use facerecon_recon::{PhotometricSummary, Refine, Start};
 use facerecon_vision::crop::CropTransform;
 
 use crate::ClientError;
@@ -39,6 +39,8 @@ pub struct Face {
 
 #[derive(Clone, Debug)]
 pub struct Fit {
+    /// Where the coefficients started (the landmark fit, or the server's encoder).
+    pub start: Start,
     pub refine: Refine,
     /// In the camera of the face's crop.
     pub coefficients: Coefficients,
@@ -193,7 +195,12 @@ fn fit_of(f: pb::Fit) -> Result<Fit, ClientError> {
         let format = pb::MeshFormat::try_from(file.format).map_err(|_| bad("unknown mesh format"))?;
         mesh_files.push((format, file.data));
     }
+    let start = match pb::Start::try_from(f.start) {
+        Ok(pb::Start::Encoder) => Start::Encoder,
+        _ => Start::Landmarks,
+    };
     Ok(Fit {
+        start,
         refine,
         coefficients,
         crop: CropTransform { scale: crop.scale, offset: [crop.offset_x, crop.offset_y] },
@@ -238,8 +245,7 @@ impl Face {
                 .collect(),
             camera: RecordCamera { fov_y_deg: fit.fov_y_deg, near_mm: fit.near_mm, far_mm: fit.far_mm },
             crop: fit.crop,
-            // The service fits from the landmark fit (it serves no encoder yet).
-            start: facerecon_recon::Start::Landmarks,
+            start: fit.start,
             crop_size: fit.crop_size,
             refine: fit.refine,
             photometric: fit.photometric,

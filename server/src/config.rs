@@ -20,6 +20,9 @@ pub struct Config {
     pub model: Option<PathBuf>,
     /// dlib 68-point shape predictor.
     pub landmark_model: PathBuf,
+    /// Encoder weights (`facerecon-train`'s `encoder-f16.safetensors`); `None`: no encoder,
+    /// requests start from the landmark fit. Run by ONNX Runtime on the CPU.
+    pub encoder: Option<PathBuf>,
     /// Faces per batch handed to the backend at most.
     pub max_batch_size: usize,
     /// How long the batcher waits for a batch to fill, ms. 0 (default): greedy, a batch is
@@ -63,6 +66,7 @@ impl Default for Config {
             metrics_listen: Some(SocketAddr::from(([127, 0, 0, 1], 9464))),
             model: None,
             landmark_model: PathBuf::from(facerecon_vision::landmarks::DEFAULT_MODEL_PATH),
+            encoder: None,
             max_batch_size: 16,
             max_queue_delay_ms: 0,
             queue_capacity: 64,
@@ -122,6 +126,9 @@ pub struct Args {
     /// dlib 68-point shape predictor [default: the shared folder's].
     #[arg(long, env = "FACERECON_LANDMARK_MODEL")]
     pub landmark_model: Option<PathBuf>,
+    /// Encoder weights; requests may then start from the encoder [default: none].
+    #[arg(long, env = "FACERECON_ENCODER")]
+    pub encoder: Option<PathBuf>,
     /// Faces per batch at most [default: 16].
     #[arg(long, env = "FACERECON_MAX_BATCH_SIZE")]
     pub max_batch_size: Option<usize>,
@@ -175,7 +182,7 @@ impl Args {
         }
         set!(listen, landmark_model, max_batch_size, max_queue_delay_ms, queue_capacity, cpu_threads);
         set!(max_message_bytes, max_image_pixels, max_faces, shutdown_grace_s, log_format);
-        set_some!(model, tls_cert, tls_key, auth_token);
+        set_some!(model, encoder, tls_cert, tls_key, auth_token);
         if let Some(m) = self.metrics_listen {
             c.metrics_listen = match m.as_str() {
                 "off" | "" => None,

@@ -33,7 +33,7 @@ pub struct Validated {
 }
 
 /// Checks a request against the contract; `max_faces` is the server's cap and default.
-pub fn validate(req: pb::ReconstructRequest, max_faces: u32) -> Result<Validated, Status> {
+pub fn validate(req: pb::ReconstructRequest, max_faces: u32, has_encoder: bool) -> Result<Validated, Status> {
     if req.id.len() > MAX_ID_BYTES {
         return Err(Status::invalid_argument(format!("id is {} bytes long; at most {MAX_ID_BYTES}", req.id.len())));
     }
@@ -49,13 +49,28 @@ pub fn validate(req: pb::ReconstructRequest, max_faces: u32) -> Result<Validated
                 "refine FULL (displacement maps) is not built yet; use LANDMARKS or COARSE",
             ));
         }
-        Ok(pb::Refine::None) => {
-            return Err(Status::unimplemented(
-                "refine NONE (the learned encoder alone) is not served yet; use LANDMARKS or COARSE",
-            ));
-        }
+        Ok(pb::Refine::None) => Refine::None,
         Err(_) => return Err(Status::invalid_argument(format!("unknown refine value {}", o.refine))),
     };
+    let start = match pb::Start::try_from(o.start) {
+        Ok(pb::Start::Unspecified | pb::Start::Landmarks) => Start::Landmarks,
+        Ok(pb::Start::Encoder) if !has_encoder => {
+            return Err(Status::unimplemented(
+                "this server has no encoder (start it with --encoder WEIGHTS); use START_LANDMARKS",
+            ));
+        }
+        Ok(pb::Start::Encoder) => Start::Encoder,
+        Err(_) => return Err(Status::invalid_argument(format!("unknown start value {}", o.start))),
+    };
+    match (start, refine) {
+        (Start::Encoder, Refine::Landmarks) => {
+            return Err(Status::invalid_argument("with START_ENCODER, refine NONE or COARSE"));
+        }
+        (Start::Landmarks, Refine::None) => {
+            return Err(Status::invalid_argument("refine NONE is the encoder alone: use START_ENCODER"));
+        }
+        _ => {}
+    }
     let max = match o.max_faces {
         0 => max_faces,
         n if n > max_faces => {
@@ -90,7 +105,7 @@ pub fn validate(req: pb::ReconstructRequest, max_faces: u32) -> Result<Validated
     Ok(Validated {
         id: req.id,
         image: req.image,
-        options: Options { start: Start::Landmarks, refine, faces, max_faces: max as usize },
+        options: Options { start, refine, faces, max_faces: max as usize },
         wanted: Wanted {
             mesh_arrays: out.mesh_arrays,
             mesh_files,
@@ -147,6 +162,10 @@ pub fn response(
             Some(r) => {
                 let mut fit = pb::Fit {
                     refine: refine(r.refine) as i32,
+                    start: match r.start {
+                        Start::Landmarks => pb::Start::Landmarks,
+                        Start::Encoder => pb::Start::Encoder,
+                    } as i32,
                     coefficients: Some(pb::Coefficients {
                         identity: r.coefficients.identity.clone(),
                         expression: r.coefficients.expression.clone(),

@@ -21,7 +21,7 @@ use std::panic::AssertUnwindSafe;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use facerecon_recon::{FaceRecon, Options, Pipeline, Reconstruction, Refine};
+use facerecon_recon::{FaceError, FaceRecon, Options, Pipeline, Reconstruction, Refine, Start};
 use facerecon_vision::pipeline::Face;
 use image::RgbImage;
 use rayon::prelude::*;
@@ -66,6 +66,7 @@ pub struct Job {
 struct FaceJob {
     image: Arc<RgbImage>,
     face: Face,
+    start: Start,
     refine: Refine,
     deadline: Option<Instant>,
     enqueued: Instant,
@@ -153,6 +154,11 @@ impl Engine {
         Admitted { _permit: p }
     }
 
+    /// Whether the loaded pipeline has an encoder (requests may start from it).
+    pub fn has_encoder(&self) -> bool {
+        self.pipeline.encoder().is_some()
+    }
+
     /// Reconstructs one admitted photo. Deadlines are the caller's to enforce around this
     /// future (dropping it cancels the remaining work); stages also check it.
     pub async fn run(&self, job: Job, _admitted: &Admitted) -> Result<pb::ReconstructResponse, Status> {
@@ -180,6 +186,7 @@ impl Engine {
             let job = FaceJob {
                 image: image.clone(),
                 face,
+                start: options.start,
                 refine: options.refine,
                 deadline,
                 enqueued: Instant::now(),
@@ -321,11 +328,31 @@ async fn batcher(
         let p = pipeline.clone();
         // On a pool thread, `par_iter` spreads the batch over the same pool.
         let done = on_pool(&pool, move || {
+            // The faces that start from the encoder go through it in one pass.
+            let wants: Vec<(&RgbImage, &Face)> =
+                batch.iter().filter(|j| j.start == Start::Encoder).map(|j| (&*j.image, &j.face)).collect();
+            let mut encoded = match wants.is_empty() {
+                true => Ok(Vec::new()),
+                false => p.encode_faces(&wants),
+            }
+            .map(Vec::into_iter);
+            let starts: Vec<Result<Option<_>, String>> = batch
+                .iter()
+                .map(|j| match (j.start, &mut encoded) {
+                    (Start::Landmarks, _) => Ok(None),
+                    (Start::Encoder, Ok(it)) => Ok(it.next().flatten()),
+                    (Start::Encoder, Err(e)) => Err(e.to_string()),
+                })
+                .collect();
             batch
                 .into_par_iter()
-                .map(|j| {
+                .zip(starts)
+                .map(|(j, start)| {
                     let FaceJob { image, face, refine, reply, .. } = j;
-                    let r = p.fit_face(&image, face, refine);
+                    let r = match start {
+                        Ok(start) => p.fit_face_from(&image, face, refine, start),
+                        Err(e) => p.failed_face(face, FaceError::Fit(e)),
+                    };
                     // Before the reply, so that the photo's task can take the image back.
                     drop(image);
                     (reply, r)

@@ -49,6 +49,15 @@ pub fn default_loader(config: &Config) -> Loader {
         };
         let front = facerecon_vision::pipeline::FrontEnd::load_standard(&config.landmark_model)?;
         let mut pipeline = Pipeline::new(model, front)?;
+        if let Some(w) = &config.encoder {
+            // ONNX Runtime's own threads for one batch; batches run one at a time.
+            let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+            let runtime = facerecon_vision::onnx::OnnxRuntimeConfig { intra_op_threads: threads, ..Default::default() };
+            let encoder = facerecon_nn::OrtEncoder::load(w, &runtime)
+                .with_context(|| format!("loading the encoder {}", w.display()))?;
+            tracing::info!(weights = %w.display(), path = %facerecon_nn::Encoder::describe(&encoder), "encoder loaded");
+            pipeline.set_encoder(Arc::new(encoder))?;
+        }
         pipeline.limits.max_pixels = config.max_image_pixels;
         pipeline.limits.max_encoded_bytes = pipeline.limits.max_encoded_bytes.min(config.max_message_bytes);
         Ok(Arc::new(pipeline))

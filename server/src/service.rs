@@ -116,7 +116,7 @@ impl Service {
     async fn reconstruct_one(&self, req: Request<pb::ReconstructRequest>) -> Result<pb::ReconstructResponse, Status> {
         let engine = self.engine()?;
         let deadline = deadline_of(&req);
-        let v = convert::validate(req.into_inner(), self.state.max_faces)?;
+        let v = convert::validate(req.into_inner(), self.state.max_faces, engine.has_encoder())?;
         let span = tracing::info_span!("reconstruct", id = %v.id, bytes = v.image.len());
         async move {
             let admitted = engine.try_admit()?;
@@ -226,7 +226,7 @@ async fn drive_stream(
             msg = inbound.message(), if reading => match msg {
                 Ok(Some(req)) => {
                     let id = req.id.clone();
-                    let v = match convert::validate(req, max_faces) {
+                    let v = match convert::validate(req, max_faces, engine.has_encoder()) {
                         Ok(v) => v,
                         Err(s) => {
                             record("ReconstructStream.item", Instant::now(), s.code());

@@ -503,3 +503,82 @@ async fn tls() {
     assert!(plain.reconstruct(Request::new("plain", photo(0))).await.is_err());
     s.stop().await.unwrap();
 }
+
+/// A server started with an encoder answers START_ENCODER requests (NONE: the encoder's
+/// answer, the same as in-process; COARSE: refined from it) for single photos and streams;
+/// a server without one answers UNIMPLEMENTED, and start/refine pairs that make no sense
+/// are INVALID_ARGUMENT.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_encoder_start() {
+    use facerecon_nn::weights::{self, Precision};
+    // Untrained weights: this checks the serving path, not accuracy.
+    let model = facerecon_tests::pipeline().model().clone();
+    let net_config = facerecon_nn::NetworkConfig::tiny(&model).unwrap();
+    let device = burn::tensor::Device::default();
+    let net = facerecon_nn::EncoderNet::new(&net_config, &device);
+    let path = std::env::temp_dir().join(format!("facerecon-service-encoder-{}.safetensors", std::process::id()));
+    weights::save(&net, &net_config, Precision::F16, &path).unwrap();
+
+    let config = Config { encoder: Some(path.clone()), ..Config::default() };
+    let s = TestServer::start_with(config.clone(), facerecon_server::default_loader(&config)).await;
+    s.wait_serving(Duration::from_secs(120)).await;
+    let c = client(&s).await;
+    let enc = |refine: pb::Refine| pb::Options {
+        start: pb::Start::Encoder as i32,
+        refine: refine as i32,
+        landmarks: vec![pb::LandmarkSet { points: pts(0).iter().map(|p| pb::Point { x: p[0], y: p[1] }).collect() }],
+        ..Default::default()
+    };
+    let r = c.reconstruct(with(enc(pb::Refine::None), photo(0))).await.unwrap();
+    let fit = r.faces[0].fit.as_ref().unwrap();
+    assert_eq!((fit.start, fit.refine), (facerecon_recon::Start::Encoder, facerecon_recon::Refine::None));
+    // The same as the encoder in-process on the same face.
+    let mut local = facerecon_recon::Pipeline::new(
+        model.clone(),
+        facerecon_vision::pipeline::FrontEnd::load_standard(facerecon_vision::landmarks::DEFAULT_MODEL_PATH.as_ref())
+            .unwrap(),
+    )
+    .unwrap();
+    let burn_encoder = facerecon_nn::BurnEncoder::load(&path, device).unwrap();
+    local.set_encoder(std::sync::Arc::new(burn_encoder)).unwrap();
+    let options = facerecon_recon::Options {
+        start: facerecon_recon::Start::Encoder,
+        refine: facerecon_recon::Refine::None,
+        faces: facerecon_recon::FaceSource::Landmarks(vec![pts(0)]),
+        ..Default::default()
+    };
+    let want = local.reconstruct(&photo(0), &options).unwrap();
+    let want = &want.faces[0].fit.as_ref().unwrap().coefficients;
+    let d = want.identity.iter().zip(&fit.coefficients.identity).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
+    assert!(d < 1e-3, "server (ONNX Runtime) and in-process (burn) differ by {d}");
+
+    let r = c.reconstruct(with(enc(pb::Refine::Coarse), photo(0))).await.unwrap();
+    let fit = r.faces[0].fit.as_ref().unwrap();
+    assert!(fit.photometric.is_some_and(|p| p.loss_end < p.loss_start));
+
+    // A stream of photos, detected faces, all from the encoder (batched across photos).
+    let detect =
+        pb::Options { start: pb::Start::Encoder as i32, refine: pb::Refine::None as i32, ..Default::default() };
+    let reqs: Vec<Request> =
+        (0..6).map(|k| Request::new(format!("p{k}"), photo(k)).with_options(detect.clone())).collect();
+    let answers: Vec<_> = c.reconstruct_stream(tokio_stream::iter(reqs), 6).await.unwrap().collect().await;
+    assert_eq!(answers.len(), 6);
+    for a in &answers {
+        let (id, r) = a.as_ref().unwrap();
+        let r = r.as_ref().unwrap_or_else(|e| panic!("{id}: {e}"));
+        assert!(!r.faces.is_empty(), "{id}");
+        assert!(r.faces.iter().all(|f| f.fit.as_ref().is_ok_and(|f| f.start == facerecon_recon::Start::Encoder)));
+    }
+
+    for (start, refine) in [(pb::Start::Encoder, pb::Refine::Landmarks), (pb::Start::Landmarks, pb::Refine::None)] {
+        let o = pb::Options { start: start as i32, refine: refine as i32, ..Default::default() };
+        assert_eq!(code(c.reconstruct(with(o, photo(0))).await), Code::InvalidArgument, "{start:?} {refine:?}");
+    }
+    s.stop().await.unwrap();
+
+    let bare = TestServer::start(Config::default()).await;
+    let c = client(&bare).await;
+    assert_eq!(code(c.reconstruct(with(enc(pb::Refine::None), photo(0))).await), Code::Unimplemented);
+    bare.stop().await.unwrap();
+    let _ = std::fs::remove_file(&path);
+}

@@ -265,15 +265,29 @@ impl Pipeline {
     /// The encoder's coefficients for each face (`None` for faces too small to reconstruct),
     /// one batch for the photo.
     fn encode(&self, image: &RgbImage, faces: &[Face]) -> Result<Vec<Option<Coefficients>>, ReconError> {
-        let Some(encoder) = &self.encoder else { return Ok(vec![None; faces.len()]) };
-        let crops: Vec<_> = faces
+        let items: Vec<(&RgbImage, &Face)> = faces.iter().map(|f| (image, f)).collect();
+        self.encode_faces(&items)
+    }
+
+    /// The encoder's coefficients for faces of any photos, in one batch (the service's
+    /// batcher forms it across photos); `None` for faces too small to reconstruct.
+    pub fn encode_faces(&self, items: &[(&RgbImage, &Face)]) -> Result<Vec<Option<Coefficients>>, ReconError> {
+        let Some(encoder) = &self.encoder else { return Err(ReconError::Options("no encoder is loaded".into())) };
+        let crops: Vec<_> = items
             .par_iter()
-            .filter(|f| f.bucket != Bucket::TooSmall)
-            .map(|f| crop::crop_face(image, &f.landmark_box))
+            .filter(|(_, f)| f.bucket != Bucket::TooSmall)
+            .map(|(image, f)| crop::crop_face(image, &f.landmark_box))
             .collect();
         let batch = CropBatch::from_crops(&crops).map_err(|e| ReconError::Encoder(e.to_string()))?;
         let mut out = encoder.encode(&batch).map_err(|e| ReconError::Encoder(e.to_string()))?.into_iter();
-        Ok(faces.iter().map(|f| if f.bucket == Bucket::TooSmall { None } else { out.next() }).collect())
+        Ok(items.iter().map(|(_, f)| if f.bucket == Bucket::TooSmall { None } else { out.next() }).collect())
+    }
+
+    /// A face that could not be fitted, with its crop frame.
+    pub fn failed_face(&self, face: Face, error: FaceError) -> FaceRecon {
+        let (left, top, side) = crop::crop_square(&face.landmark_box);
+        let crop = CropTransform::from_square(left, top, side.max(1e-3), CROP_SIZE);
+        FaceRecon { face, crop, fit: Err(error) }
     }
 
     /// The faces to reconstruct, largest first: detected, or from the caller's boxes or
