@@ -8,9 +8,11 @@
 //!   either everything else already queued ("greedy", `max_queue_delay_ms = 0`) or what
 //!   arrives within the delay, up to `max_batch_size`; drops faces whose caller went away
 //!   or whose deadline passed; and hands the batch, each face with its resolution bucket,
-//!   to the backend (the fit, in parallel over the batch on the backend's own threads, so
-//!   that it never waits behind queued decode jobs). Only one batch is in the backend at a
-//!   time, so batches form while it works.
+//!   to the backend: the faces that start from the encoder go through it in one pass (their
+//!   crops and buckets as one `CropBatch`, across photos), then every face's fit runs in
+//!   parallel over the batch on the backend's own threads, so that it never waits behind
+//!   queued decode jobs. Only one batch is in the backend at a time, so batches form while
+//!   it works.
 //! * **per photo, on the CPU pool**: the outputs (meshes, pictures).
 //!
 //! Work whose caller went away is dropped before it starts: every stage's result goes to a
