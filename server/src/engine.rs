@@ -335,7 +335,12 @@ async fn batcher(
                 batch.iter().filter(|j| j.start == Start::Encoder).map(|j| (&*j.image, &j.face)).collect();
             let mut encoded = match wants.is_empty() {
                 true => Ok(Vec::new()),
-                false => p.encode_faces(&wants),
+                false => {
+                    let t = Instant::now();
+                    let e = p.encode_faces(&wants);
+                    metrics::histogram!(m::STAGE_SECONDS, "stage" => "encode").record(t.elapsed().as_secs_f64());
+                    e
+                }
             }
             .map(Vec::into_iter);
             let starts: Vec<Result<Option<_>, String>> = batch

@@ -9,7 +9,7 @@ use metrics_exporter_prometheus::{Matcher, PrometheusBuilder};
 pub const REQUEST_SECONDS: &str = "facerecon_request_seconds";
 /// Calls by RPC and status code (stream items count under `ReconstructStream.item`).
 pub const REQUESTS: &str = "facerecon_requests_total";
-/// Per stage (`decode_detect`, `fit_batch`, `outputs`).
+/// Per stage (`decode_detect`, `encode` (the encoder pass of a batch), `fit_batch`, `outputs`).
 pub const STAGE_SECONDS: &str = "facerecon_stage_seconds";
 /// From a face entering the batcher's queue to its batch starting.
 pub const QUEUE_SECONDS: &str = "facerecon_queue_seconds";
