@@ -4,7 +4,7 @@
 //! resolution-aware losses, paired with a copy of itself degraded to a lower bucket by
 //! bicubic down- and up-sampling (thesis §5.2.1).
 
-use facerecon_model::{Coefficients, MorphableModel};
+use facerecon_model::MorphableModel;
 use facerecon_nn::{CropBatch, NetworkConfig};
 use facerecon_synth::rng::Rng;
 use facerecon_synth::{Generator, SynthConfig};
@@ -37,7 +37,6 @@ pub struct Batch {
     pub targets: Vec<f32>,
     /// `(high, low, weight)`: crop indices of a face and its copy, weight `j − i` (bucket gap).
     pub pairs: Vec<(usize, usize, f32)>,
-    pub truths: Vec<Coefficients>,
 }
 
 /// Draws training batches.
@@ -90,27 +89,25 @@ impl<'m> SyntheticFaces<'m> {
                     (low, Bucket::ALL[j], j)
                 });
                 let high = self.photo_like(image, &mut rng);
-                Ok((high, copy, sample.truth.coefficients))
+                let row = self.config.row(&sample.truth.coefficients).map_err(|e| TrainError::Data(e.to_string()))?;
+                Ok((high, copy, row))
             })
             .collect::<Result<_, TrainError>>()?;
         let mut crops = CropBatch::new(self.config.input_size);
         let mut targets = Vec::new();
-        let mut truths = Vec::new();
-        for (high, _, truth) in &items {
+        for (high, _, row) in &items {
             crops.push(high, Bucket::B0).map_err(|e| TrainError::Data(e.to_string()))?;
-            targets.extend(self.config.row(truth).map_err(|e| TrainError::Data(e.to_string()))?);
-            truths.push(truth.clone());
+            targets.extend(row);
         }
         let mut pairs = Vec::new();
-        for (i, (_, copy, truth)) in items.iter().enumerate() {
+        for (i, (_, copy, row)) in items.iter().enumerate() {
             if let Some((low, bucket, j)) = copy {
                 pairs.push((i, crops.len(), *j as f32));
                 crops.push(low, *bucket).map_err(|e| TrainError::Data(e.to_string()))?;
-                targets.extend(self.config.row(truth).map_err(|e| TrainError::Data(e.to_string()))?);
-                truths.push(truth.clone());
+                targets.extend(row);
             }
         }
-        Ok(Batch { crops, targets, pairs, truths })
+        Ok(Batch { crops, targets, pairs })
     }
 
     fn photo_like(&self, mut image: RgbImage, rng: &mut Rng) -> RgbImage {
