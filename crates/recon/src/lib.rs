@@ -285,8 +285,7 @@ impl Pipeline {
 
     /// A face that could not be fitted, with its crop frame.
     pub fn failed_face(&self, face: Face, error: FaceError) -> FaceRecon {
-        let (left, top, side) = crop::crop_square(&face.landmark_box);
-        let crop = CropTransform::from_square(left, top, side.max(1e-3), CROP_SIZE);
+        let (crop, _) = crop_frame(&face);
         FaceRecon { face, crop, fit: Err(error) }
     }
 
@@ -327,8 +326,7 @@ impl Pipeline {
         refine: Refine,
         start: Option<Coefficients>,
     ) -> FaceRecon {
-        let (left, top, side) = crop::crop_square(&face.landmark_box);
-        let crop = CropTransform::from_square(left, top, side.max(1e-3), CROP_SIZE);
+        let (crop, side) = crop_frame(&face);
         let fit = if face.bucket == Bucket::TooSmall {
             Err(FaceError::TooSmall { side })
         } else {
@@ -406,6 +404,12 @@ impl Pipeline {
             })
             .collect())
     }
+}
+
+/// A face's crop frame (crop pixels ↔ image pixels) and the side of its crop square.
+fn crop_frame(face: &Face) -> (CropTransform, f32) {
+    let (left, top, side) = crop::crop_square(&face.landmark_box);
+    (CropTransform::from_square(left, top, side.max(1e-3), CROP_SIZE), side)
 }
 
 fn check_count(given: usize, limit: usize) -> Result<(), ReconError> {
