@@ -83,25 +83,164 @@ pub struct PhotometricFit {
     pub iterations: usize,
 }
 
-/// Adam state of one parameter vector.
-struct Adam {
+/// Adam state of one parameter vector (shared with the displacement fit).
+pub(crate) struct Adam {
     m: Vec<f64>,
     v: Vec<f64>,
 }
 
 impl Adam {
-    fn new(n: usize) -> Self {
+    pub(crate) fn new(n: usize) -> Self {
         Adam { m: vec![0.0; n], v: vec![0.0; n] }
     }
-    fn step(&mut self, x: &mut [f64], g: &[f64], lr: f64, t: i32) {
+    /// One step of size `lr` along `g`; `t` counts steps from 1.
+    pub(crate) fn step(&mut self, x: &mut [f64], g: &[f64], lr: f64, t: i32) {
         let (b1, b2) = (0.9f64, 0.999f64);
+        let (c1, c2) = (1.0 - b1.powi(t), 1.0 - b2.powi(t));
         for i in 0..x.len() {
             self.m[i] = b1 * self.m[i] + (1.0 - b1) * g[i];
             self.v[i] = b2 * self.v[i] + (1.0 - b2) * g[i] * g[i];
-            let mh = self.m[i] / (1.0 - b1.powi(t));
-            let vh = self.v[i] / (1.0 - b2.powi(t));
+            let mh = self.m[i] / c1;
+            let vh = self.v[i] / c2;
             x[i] -= lr * mh / (vh.sqrt() + 1e-8);
         }
+    }
+}
+
+/// A covered pixel's index and its triangle's (vertex, barycentric) corners.
+pub(crate) type Footprint = Vec<(usize, [(u32, f64); 3])>;
+
+/// What the photometric and landmark terms share between the coarse and displacement fits:
+/// the crop as linear-scale colours, the cameras, and the region mask.
+pub(crate) struct Target<'a> {
+    pub(crate) width: u32,
+    pub(crate) height: u32,
+    pub(crate) camera: Camera,
+    pub(crate) crop_camera: CropCamera,
+    pub(crate) clip: barycentric::Clip,
+    pub(crate) colors: Vec<DVec3>,
+    pub(crate) region: &'a [u8],
+    pub(crate) triangles: &'a [[u32; 3]],
+    pub(crate) landmarks: &'a [[f32; 2]],
+    pub(crate) landmark_vertices: &'a [u32],
+}
+
+impl<'a> Target<'a> {
+    /// Checks the inputs of a fit against `model` and prepares the crop.
+    pub(crate) fn new(
+        model: &'a MorphableModel,
+        crop: &RgbImage,
+        landmarks: &'a [[f32; 2]],
+        landmark_vertices: &'a [u32],
+    ) -> Result<Self, FitError> {
+        if landmarks.len() != 68 || landmark_vertices.len() != 68 {
+            return Err(FitError::Landmarks("68 landmarks and their vertices are needed".into()));
+        }
+        let nv = model.extent_vertices(Extent::Face);
+        if landmark_vertices.iter().any(|&v| v as usize >= nv) {
+            return Err(FitError::Landmarks("a landmark vertex is outside the face area".into()));
+        }
+        let (width, height) = crop.dimensions();
+        let camera = Camera::default();
+        Ok(Target {
+            width,
+            height,
+            camera,
+            crop_camera: CropCamera::new(&camera, width),
+            clip: barycentric::Clip::new(&camera),
+            colors: crop.pixels().map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64) / 255.0).collect(),
+            region: model.mask(facerecon_model::Mask::NarrowFace),
+            triangles: model.extent_triangles(Extent::Face),
+            landmarks,
+            landmark_vertices,
+        })
+    }
+
+    /// Refuses positions that left the camera's view (a diverged step).
+    pub(crate) fn check_positions(&self, y: &[DVec3]) -> Result<(), FitError> {
+        if y.iter().any(|p| !p.is_finite() || p.z >= -self.camera.near as f64) {
+            return Err(FitError::Diverged("the face left the camera's view".into()));
+        }
+        Ok(())
+    }
+
+    /// Rasterises `y` on the CPU and keeps the pixels of triangles inside the model's
+    /// narrow face mask (no scalp, ears or neck, which hair, background and collars cover
+    /// in photos).
+    pub(crate) fn footprint(&self, y: &[DVec3]) -> Result<Footprint, FitError> {
+        // Only positions are read; colours and normals are placeholders of the right length.
+        let yf: Vec<[f32; 3]> = y.iter().map(|p| p.as_vec3().to_array()).collect();
+        let job = RenderJob {
+            positions: &yf,
+            triangles: self.triangles,
+            colors: &yf,
+            normals: &yf,
+            camera: self.camera,
+            width: self.width,
+            height: self.height,
+        };
+        let vb = cpu::rasterize(&job).map_err(|e| FitError::Diverged(format!("rendering: {e}")))?;
+        let mut fp = interpolate::footprint(&vb, self.triangles);
+        fp.retain(|(_, c)| c.iter().all(|(v, _)| self.region.get(*v as usize).is_some_and(|m| *m != 0)));
+        if fp.is_empty() {
+            return Err(FitError::Diverged("the face covers no pixel of the crop".into()));
+        }
+        Ok(fp)
+    }
+
+    /// `λph/σph · mean over the footprint of ‖I(X) − Ī‖₁`, with exact barycentrics
+    /// recomputed in f64 from `y` (only the triangle id comes from the footprint). Adds its
+    /// gradient to `g_colors` and `g_y`; returns the loss and the mean absolute colour
+    /// difference per channel.
+    pub(crate) fn photometric(
+        &self,
+        fp: &Footprint,
+        y: &[DVec3],
+        colors: &[DVec3],
+        weight: f64,
+        g_colors: &mut [DVec3],
+        g_y: &mut [DVec3],
+    ) -> (f64, f64) {
+        let scale = weight / fp.len() as f64;
+        let mut l1 = 0.0;
+        for (pix, corners) in fp {
+            let tri = [corners[0].0 as usize, corners[1].0 as usize, corners[2].0 as usize];
+            let (px, py) = ((*pix as u32 % self.width) as f64, (*pix as u32 / self.width) as f64);
+            let ray = barycentric::pixel_ray(px, py, self.width, self.height);
+            let corners_p = [y[tri[0]], y[tri[1]], y[tri[2]]];
+            let Some(b) = barycentric::forward(&self.clip, ray, corners_p) else { continue };
+            let value = colors[tri[0]] * b[0] + colors[tri[1]] * b[1] + colors[tri[2]] * b[2];
+            let d = value - self.colors[*pix];
+            l1 += d.x.abs() + d.y.abs() + d.z.abs();
+            let gi = DVec3::new(d.x.signum(), d.y.signum(), d.z.signum()) * scale;
+            for k in 0..3 {
+                g_colors[tri[k]] += gi * b[k];
+            }
+            let gb = [gi.dot(colors[tri[0]]), gi.dot(colors[tri[1]]), gi.dot(colors[tri[2]])];
+            let gp = barycentric::vjp(&self.clip, ray, corners_p, gb);
+            for k in 0..3 {
+                g_y[tri[k]] += gp[k];
+            }
+        }
+        (weight * l1 / fp.len() as f64, l1 / (3.0 * fp.len() as f64))
+    }
+
+    /// `λlms/68 · Σ‖π(y_j) − l_j‖₁` (crop pixels), its gradient added to `g_y`.
+    pub(crate) fn landmarks(&self, y: &[DVec3], weight: f64, g_y: &mut [DVec3]) -> f64 {
+        let pts: Vec<DVec3> = self.landmark_vertices.iter().map(|&v| y[v as usize]).collect();
+        let proj = project::forward(&self.crop_camera, &pts);
+        let mut g_proj = vec![[0.0; 2]; pts.len()];
+        let mut loss = 0.0;
+        let w = weight / 68.0;
+        for (j, (p, l)) in proj.iter().zip(self.landmarks).enumerate() {
+            let d = [p[0] - l[0] as f64, p[1] - l[1] as f64];
+            loss += w * (d[0].abs() + d[1].abs());
+            g_proj[j] = [w * d[0].signum(), w * d[1].signum()];
+        }
+        for (v, g) in self.landmark_vertices.iter().zip(project::vjp(&self.crop_camera, &pts, &g_proj)) {
+            g_y[*v as usize] += g;
+        }
+        loss
     }
 }
 
@@ -119,19 +258,9 @@ pub fn fit(
     if start.layout() != layout {
         return Err(FitError::Model("start coefficients do not match the model".into()));
     }
-    if landmarks.len() != 68 || landmark_vertices.len() != 68 {
-        return Err(FitError::Landmarks("68 landmarks and their vertices are needed".into()));
-    }
+    let target = Target::new(model, crop, landmarks, landmark_vertices)?;
     let nv = model.extent_vertices(Extent::Face);
-    if landmark_vertices.iter().any(|&v| v as usize >= nv) {
-        return Err(FitError::Landmarks("a landmark vertex is outside the face area".into()));
-    }
-    let (w, h) = crop.dimensions();
-    let tris = model.extent_triangles(Extent::Face);
-    let camera = Camera::default();
-    let crop_cam = CropCamera::new(&camera, w);
-    let clip = barycentric::Clip::new(&camera);
-    let target: Vec<DVec3> = crop.pixels().map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64) / 255.0).collect();
+    let tris = target.triangles;
 
     let mut ws: Vec<f64> = start.identity.iter().chain(&start.expression).map(|&x| x as f64).collect();
     let mut wa: Vec<f64> = start.albedo.iter().map(|&x| x as f64).collect();
@@ -143,7 +272,6 @@ pub fn fit(
     let mut losses = Vec::new();
     let mut last_l1 = f64::NAN;
     let mut fp = Vec::new();
-    let region = model.mask(facerecon_model::Mask::NarrowFace);
     let ni = layout.identity;
     for it in 0..settings.iterations {
         if started.elapsed() > settings.time_budget {
@@ -155,65 +283,19 @@ pub fn fit(
         // Forward.
         let s = Linear::Shape.forward_fast(model, &ws).map_err(FitError::Evaluate)?;
         let y = pose::forward(&s, q, t);
-        if y.iter().any(|p| !p.is_finite() || p.z >= -camera.near as f64) {
-            return Err(FitError::Diverged("the face left the camera's view".into()));
-        }
+        target.check_positions(&y)?;
         let nn = normals::forward(&y, tris);
         let albedo = Linear::Albedo.forward_fast(model, &wa).map_err(FitError::Evaluate)?;
         let colors = shading::forward(&albedo, &nn, &lt);
         if it % settings.raster_every.max(1) == 0 {
-            // Pass 1 reads only positions; colours and normals are placeholders of the
-            // right length.
-            let yf: Vec<[f32; 3]> = y.iter().map(|p| p.as_vec3().to_array()).collect();
-            let job =
-                RenderJob { positions: &yf, triangles: tris, colors: &yf, normals: &yf, camera, width: w, height: h };
-            let vb = cpu::rasterize(&job).map_err(|e| FitError::Diverged(format!("rendering: {e}")))?;
-            fp = interpolate::footprint(&vb, tris);
-            // The region: pixels of triangles inside the model's narrow face mask (no
-            // scalp, ears or neck, which hair, background and collars cover in photos).
-            fp.retain(|(_, c)| c.iter().all(|(v, _)| region.get(*v as usize).is_some_and(|m| *m != 0)));
+            fp = target.footprint(&y)?;
         }
-        if fp.is_empty() {
-            return Err(FitError::Diverged("the face covers no pixel of the crop".into()));
-        }
-        // Photometric term, with exact barycentrics recomputed in f64 from the positions.
-        let scale = settings.lambda_ph / (settings.sigma_ph * fp.len() as f64);
         let mut g_colors = vec![DVec3::ZERO; nv];
         let mut g_y = vec![DVec3::ZERO; nv];
-        let mut l1 = 0.0;
-        for (pix, corners) in &fp {
-            let tri = [corners[0].0 as usize, corners[1].0 as usize, corners[2].0 as usize];
-            let (px, py) = ((*pix as u32 % w) as f64, (*pix as u32 / w) as f64);
-            let ray = barycentric::pixel_ray(px, py, w, h);
-            let corners_p = [y[tri[0]], y[tri[1]], y[tri[2]]];
-            let Some(b) = barycentric::forward(&clip, ray, corners_p) else { continue };
-            let value = colors[tri[0]] * b[0] + colors[tri[1]] * b[1] + colors[tri[2]] * b[2];
-            let d = value - target[*pix];
-            l1 += d.x.abs() + d.y.abs() + d.z.abs();
-            let gi = DVec3::new(d.x.signum(), d.y.signum(), d.z.signum()) * scale;
-            for k in 0..3 {
-                g_colors[tri[k]] += gi * b[k];
-            }
-            let gb = [gi.dot(colors[tri[0]]), gi.dot(colors[tri[1]]), gi.dot(colors[tri[2]])];
-            let gp = barycentric::vjp(&clip, ray, corners_p, gb);
-            for k in 0..3 {
-                g_y[tri[k]] += gp[k];
-            }
-        }
-        last_l1 = l1 / (3.0 * fp.len() as f64);
-        let mut loss = settings.lambda_ph * l1 / (settings.sigma_ph * fp.len() as f64);
-        // Landmark term (L1, crop pixels).
-        let lm_pts: Vec<DVec3> = landmark_vertices.iter().map(|&v| y[v as usize]).collect();
-        let proj = project::forward(&crop_cam, &lm_pts);
-        let mut g_proj = vec![[0.0; 2]; 68];
-        for j in 0..68 {
-            let d = [proj[j][0] - landmarks[j][0] as f64, proj[j][1] - landmarks[j][1] as f64];
-            loss += settings.lambda_lms / 68.0 * (d[0].abs() + d[1].abs());
-            g_proj[j] = [settings.lambda_lms / 68.0 * d[0].signum(), settings.lambda_lms / 68.0 * d[1].signum()];
-        }
-        for (v, g) in landmark_vertices.iter().zip(project::vjp(&crop_cam, &lm_pts, &g_proj)) {
-            g_y[*v as usize] += g;
-        }
+        let (mut loss, l1) =
+            target.photometric(&fp, &y, &colors, settings.lambda_ph / settings.sigma_ph, &mut g_colors, &mut g_y);
+        last_l1 = l1;
+        loss += target.landmarks(&y, settings.lambda_lms, &mut g_y);
         // Priors.
         let (id, ex) = ws.split_at(ni);
         loss += settings.lambda_id * id.iter().map(|x| x * x).sum::<f64>()
