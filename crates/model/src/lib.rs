@@ -8,6 +8,7 @@
 //! * [`bfm`] — the Basel Face Model 2009 + expressions importer ([`mat`]: MATLAB v5 reader).
 //! * [`obj`], [`npy`] — readers for the importers' inputs; [`symmetry`] — mirror maps;
 //!   [`regions`] — landmark-defined vertex masks.
+//! * [`displacement`] — displacement maps: offsets along the normal in UV space.
 //! * [`mesh`] — a triangle mesh with optional per-vertex attributes, and its export.
 //! * [`lit`] — [`lit::LitFace`]: coefficients → posed, lit face-area mesh (the hot path of
 //!   fitting, the service and synthetic data).
@@ -16,6 +17,7 @@
 pub mod albedo;
 pub mod bfm;
 pub mod coeffs;
+pub mod displacement;
 pub mod error;
 pub mod format;
 pub mod ict;
@@ -30,6 +32,7 @@ pub mod scene;
 pub mod symmetry;
 
 pub use coeffs::{CoeffLayout, Coefficients};
+pub use displacement::DisplacementMap;
 pub use error::{ErrorKind, ModelError};
 pub use mesh::Mesh;
 pub use morphable::{Block, Extent, Mask, ModelMeta, ModelParts, MorphableModel, Prior};

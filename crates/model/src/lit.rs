@@ -6,6 +6,7 @@
 //! (f32, the renderer's precision; [`scene::vertex_normals`] is the f64 reference, compared
 //! in the tests). Fitting, the service and synthetic data all use this one path.
 
+use crate::displacement::DisplacementMap;
 use crate::scene::{self, Pose};
 use crate::{Coefficients, Extent, Mesh, ModelError, MorphableModel};
 
@@ -26,6 +27,18 @@ pub struct LitFace {
 impl LitFace {
     /// Evaluates `c` on `model`'s face area into the reused buffers.
     pub fn update(&mut self, model: &MorphableModel, c: &Coefficients) -> Result<(), ModelError> {
+        self.update_displaced(model, c, None)
+    }
+
+    /// [`Self::update`], then, with a map, each vertex moved along its normal by the map's
+    /// value at its UV (mm) and the normals recomputed from the displaced surface (the
+    /// refined normals the shading uses, thesis ch. 6).
+    pub fn update_displaced(
+        &mut self,
+        model: &MorphableModel,
+        c: &Coefficients,
+        displacement: Option<&DisplacementMap>,
+    ) -> Result<(), ModelError> {
         model.shape_into(&c.identity, &c.expression, Extent::Face, &mut self.model_space)?;
         let pose = Pose::from_coefficients(c);
         let r = pose.matrix();
@@ -33,7 +46,12 @@ impl LitFace {
         self.positions.clear();
         self.positions.extend(self.model_space.iter().map(|p| (r * glam::Vec3::from(*p) + t).to_array()));
 
-        scene::vertex_normals_into(&self.positions, model.extent_triangles(Extent::Face), &mut self.normals);
+        let tris = model.extent_triangles(Extent::Face);
+        scene::vertex_normals_into(&self.positions, tris, &mut self.normals);
+        if let Some(map) = displacement {
+            map.displace(&mut self.positions, &self.normals, &model.vertex_uvs()[..self.model_space.len()]);
+            scene::vertex_normals_into(&self.positions, tris, &mut self.normals);
+        }
 
         model.albedo_into(&c.albedo, Extent::Face, &mut self.albedo)?;
         scene::shade_into(&self.albedo, &self.normals, &c.light, &mut self.colors);
