@@ -12,6 +12,8 @@
 //! * [`shading`] — Lambertian SH colour `A ⊙ (Wᵀ φ(n))` (Eq. 3.1).
 //! * [`interpolate`] — attributes at pixels from a visibility buffer (triangle id and
 //!   barycentrics, not differentiated): the VJP with respect to the vertex attributes.
+//! * [`displace`] — offsets along fixed normals read from a displacement map (thesis
+//!   Eq. 6.1): the VJP with respect to the map's texels.
 //! * [`barycentric`] — a pixel's perspective-correct barycentrics as a function of its
 //!   triangle's corners (homogeneous rasterisation), and their VJP: how the photometric
 //!   loss reaches vertex positions inside triangles.
@@ -20,6 +22,7 @@
 //! photometric term at occlusion boundaries).
 
 pub mod barycentric;
+pub mod displace;
 pub mod interpolate;
 pub mod linear;
 pub mod normals;

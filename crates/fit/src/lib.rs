@@ -9,6 +9,8 @@
 //! * [`contour`] — which vertex each jaw landmark (iBUG 1–17) sits on under a given pose.
 //! * [`decoder`] — the differentiable decoder: forward and vector–Jacobian product per
 //!   primitive, each checked against finite differences.
+//! * [`photometric`] — the coarse fit: every coefficient by Adam through the decoder.
+//! * [`displacement`] — the displacement map after the coarse fit (thesis ch. 6).
 //! * [`landmark_fit`] — pose, then identity and expression by regularised least squares,
 //!   alternating (expressions kept in [0, 1]).
 //!
@@ -17,6 +19,7 @@
 pub mod camera;
 pub mod contour;
 pub mod decoder;
+pub mod displacement;
 pub mod error;
 pub mod landmark_fit;
 pub mod photometric;

@@ -330,3 +330,26 @@ fn barycentric_vjp_and_agreement_with_the_rasteriser() {
     }
     assert!(checked > 150, "{checked} covered pixels");
 }
+
+#[test]
+fn displacement_vjp() {
+    // A map small enough that the vertices' taps overlap, the same chain as the
+    // displacement fit: texels → displaced points → normals.
+    let mut rng = Lcg(9);
+    let (x, tris) = mesh(&mut rng);
+    let n = normals::forward(&x, &tris);
+    let map = facerecon_model::DisplacementMap::zeros(5).unwrap();
+    let uvs: Vec<[f32; 2]> =
+        (0..x.len()).map(|_| [(0.5 + 0.6 * rng.u()) as f32, (0.5 + 0.6 * rng.u()) as f32]).collect();
+    let taps = displace::taps(&map, &uvs);
+    let d: Vec<f64> = (0..25).map(|_| 0.05 * rng.u()).collect();
+    let g = rng.vecs(x.len());
+    let f = |d: &[f64]| dot3(&g, &normals::forward(&displace::forward(&x, &n, &taps, d), &tris));
+    let y = displace::forward(&x, &n, &taps, &d);
+    let grad = displace::vjp(&n, &taps, 25, &normals::vjp(&y, &tris, &g));
+    let dir: Vec<f64> = (0..25).map(|_| rng.u()).collect();
+    let h = 1e-6;
+    let shift = |s: f64| d.iter().zip(&dir).map(|(a, b)| a + s * b).collect::<Vec<_>>();
+    let analytic: f64 = grad.iter().zip(&dir).map(|(a, b)| a * b).sum();
+    close("displacement", analytic, (f(&shift(h)) - f(&shift(-h))) / (2.0 * h));
+}
