@@ -5,7 +5,7 @@
 use facerecon_model::coeffs::SH_COEFFS;
 use facerecon_model::{Coefficients, Mesh};
 use facerecon_proto::v1 as pb;
-use facerecon_recon::{PhotometricSummary, Refine, Start};
+use facerecon_recon::{DisplacementSummary, PhotometricSummary, Refine, Start};
 use facerecon_vision::crop::CropTransform;
 
 use crate::ClientError;
@@ -54,6 +54,11 @@ pub struct Fit {
     pub landmark_rms_px: f32,
     pub landmark_rms_relative: f32,
     pub photometric: Option<PhotometricSummary>,
+    /// What the displacement stage did (at [`Refine::Full`]).
+    pub displacement: Option<DisplacementSummary>,
+    /// The displacement map as a 16-bit PNG (`facerecon_recon::outputs::displacement_png`),
+    /// when asked for.
+    pub displacement_png: Option<Vec<u8>>,
     /// Vertex positions (camera space, mm), normals and shaded colours, when asked for.
     pub mesh: Option<MeshArrays>,
     /// Mesh files, when asked for.
@@ -176,6 +181,7 @@ fn fit_of(f: pb::Fit) -> Result<Fit, ClientError> {
     };
     let refine = match pb::Refine::try_from(f.refine) {
         Ok(pb::Refine::Coarse) => Refine::Coarse,
+        Ok(pb::Refine::Full) => Refine::Full,
         Ok(pb::Refine::Landmarks) => Refine::Landmarks,
         Ok(pb::Refine::None) => Refine::None,
         _ => return Err(bad(format!("unexpected refine level {}", f.refine))),
@@ -217,6 +223,14 @@ fn fit_of(f: pb::Fit) -> Result<Fit, ClientError> {
             loss_end: p.loss_end,
             color_l1: p.color_l1,
         }),
+        displacement: f.displacement.as_ref().map(|d| DisplacementSummary {
+            iterations: d.iterations as usize,
+            color_l1_start: d.color_l1_start,
+            color_l1: d.color_l1,
+            min_mm: d.min_mm,
+            max_mm: d.max_mm,
+        }),
+        displacement_png: f.displacement.and_then(|d| (!d.png.is_empty()).then_some(d.png)),
         mesh,
         mesh_files,
     })
@@ -249,6 +263,7 @@ impl Face {
             crop_size: fit.crop_size,
             refine: fit.refine,
             photometric: fit.photometric,
+            displacement: fit.displacement,
             residuals: Residuals {
                 landmark_rms_px: fit.landmark_rms_px,
                 landmark_rms_relative: fit.landmark_rms_relative,

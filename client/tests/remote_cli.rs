@@ -1,5 +1,6 @@
 //! The remote side of the `facerecon` command against a server on loopback:
-//! `reconstruct` writes exactly the files `fit` writes in-process, and `bulk` streams a
+//! `reconstruct` writes exactly the files `fit` writes in-process (at the full level: meshes
+//! with the displacement map, and the map's PNG), and `bulk` streams a
 //! folder with a bad file in it, resumes, and splits into shards.
 
 use std::path::{Path, PathBuf};
@@ -41,18 +42,19 @@ async fn reconstruct_writes_the_files_fit_writes() {
         let (pics, remote) = (pics.clone(), remote.clone());
         move || {
             let p: Vec<&Path> = pics.iter().map(|p| p.as_path()).collect();
-            facerecon(&["reconstruct", "--server", &url, "-o", remote.to_str().unwrap()], &p)
+            facerecon(&["reconstruct", "--refine", "full", "--server", &url, "-o", remote.to_str().unwrap()], &p)
         }
     })
     .await
     .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let p: Vec<&Path> = pics.iter().map(|p| p.as_path()).collect();
-    let out = facerecon(&["fit", "-o", local.to_str().unwrap()], &p);
+    let out = facerecon(&["fit", "--refine", "full", "-o", local.to_str().unwrap()], &p);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let files = sorted_files(&remote);
     assert_eq!(files, sorted_files(&local));
-    assert_eq!(files.len(), 2 * 7, "{files:?}");
+    assert_eq!(files.len(), 2 * 8, "{files:?}");
+    assert!(files.iter().any(|f| f.ends_with("-face1-displacement.png")), "{files:?}");
     for f in files {
         assert_eq!(std::fs::read(remote.join(&f)).unwrap(), std::fs::read(local.join(&f)).unwrap(), "{f} differs");
     }

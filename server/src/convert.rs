@@ -21,6 +21,7 @@ pub struct Wanted {
     pub mesh_files: Vec<pb::MeshFormat>,
     pub overlay: bool,
     pub side_by_side: bool,
+    pub displacement_map: bool,
 }
 
 /// A validated request: the engine's job without its deadline.
@@ -44,11 +45,7 @@ pub fn validate(req: pb::ReconstructRequest, max_faces: u32, has_encoder: bool) 
     let refine = match pb::Refine::try_from(o.refine) {
         Ok(pb::Refine::Unspecified | pb::Refine::Landmarks) => Refine::Landmarks,
         Ok(pb::Refine::Coarse) => Refine::Coarse,
-        Ok(pb::Refine::Full) => {
-            return Err(Status::unimplemented(
-                "refine FULL (displacement maps) is not built yet; use LANDMARKS or COARSE",
-            ));
-        }
+        Ok(pb::Refine::Full) => Refine::Full,
         Ok(pb::Refine::None) => Refine::None,
         Err(_) => return Err(Status::invalid_argument(format!("unknown refine value {}", o.refine))),
     };
@@ -64,7 +61,7 @@ pub fn validate(req: pb::ReconstructRequest, max_faces: u32, has_encoder: bool) 
     };
     match (start, refine) {
         (Start::Encoder, Refine::Landmarks) => {
-            return Err(Status::invalid_argument("with START_ENCODER, refine NONE or COARSE"));
+            return Err(Status::invalid_argument("with START_ENCODER, refine NONE, COARSE or FULL"));
         }
         (Start::Landmarks, Refine::None) => {
             return Err(Status::invalid_argument("refine NONE is the encoder alone: use START_ENCODER"));
@@ -89,8 +86,8 @@ pub fn validate(req: pb::ReconstructRequest, max_faces: u32, has_encoder: bool) 
         (false, false) => return Err(Status::invalid_argument("give boxes or landmarks, not both")),
     };
     let out = o.outputs.unwrap_or_default();
-    if out.displacement_map {
-        return Err(Status::unimplemented("displacement maps are not built yet"));
+    if out.displacement_map && refine != Refine::Full {
+        return Err(Status::invalid_argument("a displacement map comes with refine FULL only"));
     }
     let mut mesh_files = Vec::new();
     for &f in &out.mesh_files {
@@ -111,6 +108,7 @@ pub fn validate(req: pb::ReconstructRequest, max_faces: u32, has_encoder: bool) 
             mesh_files,
             overlay: out.overlay,
             side_by_side: out.side_by_side,
+            displacement_map: out.displacement_map,
         },
     })
 }
@@ -141,6 +139,7 @@ fn refine(r: Refine) -> pb::Refine {
         Refine::None => pb::Refine::None,
         Refine::Landmarks => pb::Refine::Landmarks,
         Refine::Coarse => pb::Refine::Coarse,
+        Refine::Full => pb::Refine::Full,
     }
 }
 
@@ -196,10 +195,28 @@ pub fn response(
                     }),
                     mesh: None,
                     mesh_files: Vec::new(),
+                    displacement: None,
                 };
-                if wanted.mesh_arrays || !wanted.mesh_files.is_empty() {
-                    let mesh =
-                        outputs::fitted_mesh(model, &r.coefficients).map_err(|e| internal("building the mesh", e))?;
+                let face_fit = f.fit.as_ref().ok();
+                if let Some(d) = face_fit.and_then(|x| x.displacement.as_ref()) {
+                    let s = d.summary;
+                    let mut m = pb::Displacement {
+                        iterations: s.iterations as u32,
+                        color_l1_start: s.color_l1_start,
+                        color_l1: s.color_l1,
+                        min_mm: s.min_mm,
+                        max_mm: s.max_mm,
+                        ..Default::default()
+                    };
+                    if wanted.displacement_map {
+                        let png = outputs::displacement_png(&d.map)
+                            .map_err(|e| internal("encoding the displacement map", e))?;
+                        (m.png, m.scale_mm, m.offset_mm) = (png.bytes, png.scale_mm, png.offset_mm);
+                    }
+                    fit.displacement = Some(m);
+                }
+                if let (Some(face_fit), true) = (face_fit, wanted.mesh_arrays || !wanted.mesh_files.is_empty()) {
+                    let mesh = outputs::face_mesh(model, face_fit).map_err(|e| internal("building the mesh", e))?;
                     if wanted.mesh_arrays {
                         let flat = |v: &[[f32; 3]]| v.iter().flatten().copied().collect::<Vec<f32>>();
                         fit.mesh = Some(pb::MeshArrays {

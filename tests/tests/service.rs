@@ -90,6 +90,47 @@ async fn a_photo_gets_coefficients_meshes_and_pictures() {
     s.stop().await.unwrap();
 }
 
+/// REFINE_FULL: the displacement stage's summary, its map as a 16-bit PNG, and meshes that
+/// carry the map, all as the in-process pipeline makes them.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_full_level_sends_its_displacement_map() {
+    let s = TestServer::start(Config::default()).await;
+    let c = client(&s).await;
+    let model = c.model().await.unwrap();
+    let truth = pts(0);
+    let opts = pb::Options {
+        refine: pb::Refine::Full as i32,
+        landmarks: vec![pb::LandmarkSet { points: truth.iter().map(|p| pb::Point { x: p[0], y: p[1] }).collect() }],
+        outputs: Some(pb::Outputs { mesh_arrays: true, displacement_map: true, ..Default::default() }),
+        ..Default::default()
+    };
+    let bytes = photo(0);
+    let r = c.reconstruct(with(opts, bytes.clone())).await.unwrap();
+    let fit = r.faces[0].fit.as_ref().unwrap();
+    assert_eq!(fit.refine, facerecon_recon::Refine::Full);
+    let summary = fit.displacement.expect("displacement summary");
+    assert!(summary.color_l1 < summary.color_l1_start, "{summary:?}");
+    let map = facerecon_recon::outputs::read_displacement_png(fit.displacement_png.as_ref().unwrap()).unwrap();
+
+    let p = facerecon_tests::pipeline();
+    let local_options = facerecon_recon::Options {
+        refine: facerecon_recon::Refine::Full,
+        faces: facerecon_recon::FaceSource::Landmarks(vec![truth]),
+        ..Default::default()
+    };
+    let local = p.reconstruct(&bytes, &local_options).unwrap();
+    let local_fit = local.faces[0].fit.as_ref().unwrap();
+    let local_map = &local_fit.displacement.as_ref().unwrap().map;
+    let step = (summary.max_mm - summary.min_mm) / 65535.0;
+    assert!(map.values().iter().zip(local_map.values()).all(|(a, b)| (a - b).abs() <= step));
+    let local_record = facerecon_recon::outputs::face_record(p.model(), &local.faces[0]).unwrap();
+    let remote_record = r.faces[0].record(&model.info).unwrap();
+    assert_eq!(serde_json::to_value(&local_record).unwrap(), serde_json::to_value(&remote_record).unwrap());
+    let mesh = model.mesh(fit.mesh.as_ref().unwrap()).unwrap();
+    assert_eq!(mesh.positions, facerecon_recon::outputs::face_mesh(p.model(), local_fit).unwrap().positions);
+    s.stop().await.unwrap();
+}
+
 /// Each bad input gets its precise status; the server keeps serving after all of them.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bad_input_gets_its_precise_status() {
@@ -111,21 +152,15 @@ async fn bad_input_gets_its_precise_status() {
         ("truncated PNG", with(o(), good[..good.len() / 2].to_vec()), Code::InvalidArgument, "truncated"),
         ("50000×50000 PNG", with(o(), png_header_claiming(50_000, 50_000)), Code::ResourceExhausted, "too large"),
         ("over the message limit", with(o(), vec![0u8; 5 << 20]), Code::ResourceExhausted, "message length too large"),
-        (
-            "refine FULL",
-            with(pb::Options { refine: pb::Refine::Full as i32, ..o() }, good.clone()),
-            Code::Unimplemented,
-            "not built",
-        ),
         ("unknown refine", with(pb::Options { refine: 99, ..o() }, good.clone()), Code::InvalidArgument, "refine"),
         (
-            "displacement map",
+            "displacement map below refine FULL",
             with(
                 pb::Options { outputs: Some(pb::Outputs { displacement_map: true, ..Default::default() }), ..o() },
                 good.clone(),
             ),
-            Code::Unimplemented,
-            "displacement",
+            Code::InvalidArgument,
+            "refine FULL only",
         ),
         (
             "unknown mesh format",

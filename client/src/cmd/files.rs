@@ -1,7 +1,9 @@
 //! The files a reconstruction is written as, one layout for `fit` (in-process) and
 //! `reconstruct` / `bulk` (through a server). In `DIR`, per face `K` (1-based, largest
 //! first) of `<stem>`: `<stem>-face<K>.json` (the coefficient record), `.glb`, `.ply`,
-//! `.obj` + `.mtl`; per photo `<stem>-overlay.png` and `<stem>-sidebyside.png`.
+//! `.obj` + `.mtl`, and at the full level `<stem>-face<K>-displacement.png` (16-bit, see
+//! `facerecon_recon::outputs::displacement_png`); per photo `<stem>-overlay.png` and
+//! `<stem>-sidebyside.png`.
 
 use std::path::{Path, PathBuf};
 
@@ -13,11 +15,21 @@ use facerecon_recon::outputs::FaceRecord;
 pub const OVERLAY: &str = "overlay";
 pub const SIDE_BY_SIDE: &str = "sidebyside";
 
-/// The record as JSON and, with a mesh, the mesh in every format.
-pub fn write_face(record: &FaceRecord, mesh: Option<&Mesh>, base: &Path) -> anyhow::Result<()> {
+/// The record as JSON, the displacement map's PNG when there is one, and, with a mesh, the
+/// mesh in every format.
+pub fn write_face(
+    record: &FaceRecord,
+    mesh: Option<&Mesh>,
+    displacement_png: Option<&[u8]>,
+    base: &Path,
+) -> anyhow::Result<()> {
     let with = |ext: &str| PathBuf::from(format!("{}.{ext}", base.display()));
     let json = with("json");
     std::fs::write(&json, serde_json::to_vec_pretty(record)?).with_context(|| format!("writing {}", json.display()))?;
+    if let Some(png) = displacement_png {
+        let p = PathBuf::from(format!("{}-displacement.png", base.display()));
+        std::fs::write(&p, png).with_context(|| format!("writing {}", p.display()))?;
+    }
     let Some(mesh) = mesh else { return Ok(()) };
     let create = |p: &Path| {
         std::fs::File::create(p).map(std::io::BufWriter::new).with_context(|| format!("creating {}", p.display()))

@@ -1,7 +1,7 @@
 //! `facerecon fit IMAGE… -o DIR [--refine landmarks] [--encoder W] [--json] [--pts]`: 3D
 //! faces from photos, in-process. Per face `K` (1-based, largest first) of `<stem>`, in `DIR`:
 //! `<stem>-face<K>.glb`, `.ply`, `.obj` (+ `.mtl`), `.json` (coefficients, landmarks,
-//! residuals), and per photo `<stem>-overlay.png` and `<stem>-sidebyside.png` (photo |
+//! residuals), `-displacement.png` at `--refine full`, and per photo `<stem>-overlay.png` and `<stem>-sidebyside.png` (photo |
 //! reconstruction | shape | albedo | shading, a row per face). `--json` prints one line per photo.
 
 use std::path::{Path, PathBuf};
@@ -26,10 +26,11 @@ pub struct FitArgs {
     out: PathBuf,
     /// How far to reconstruct: `landmarks` (pose, identity and expression from the 68
     /// landmarks, milliseconds) or `coarse` (then every coefficient, albedo and light
-    /// included, by the photometric fit: about a second per face). With `--encoder`:
-    /// `none` (the encoder alone) or `coarse` (the photometric fit from the encoder's
-    /// answer). `full` (displacement maps) is not built yet. Default: `landmarks`, or
-    /// `none` with `--encoder`.
+    /// included, by the photometric fit: about a second per face) or `full` (then a
+    /// displacement map on the coarse surface, seconds per face; written as
+    /// `<stem>-face<K>-displacement.png` and applied to the meshes). With `--encoder`:
+    /// `none` (the encoder alone), `coarse` or `full` (the fits from the encoder's answer).
+    /// Default: `landmarks`, or `none` with `--encoder`.
     #[arg(long, value_enum)]
     refine: Option<RefineArg>,
     /// Start from the learned encoder of this weights file (`facerecon-train` writes
@@ -61,6 +62,7 @@ enum RefineArg {
     None,
     Landmarks,
     Coarse,
+    Full,
 }
 
 #[derive(serde::Serialize)]
@@ -136,6 +138,7 @@ fn one(pipeline: &Pipeline, args: &FitArgs, path: &Path) -> anyhow::Result<()> {
         (None, Start::Encoder) | (Some(RefineArg::None), _) => Refine::None,
         (None, Start::Landmarks) | (Some(RefineArg::Landmarks), _) => Refine::Landmarks,
         (Some(RefineArg::Coarse), _) => Refine::Coarse,
+        (Some(RefineArg::Full), _) => Refine::Full,
     };
     let options = Options { start, refine, faces, max_faces: args.max_faces };
     let recon = pipeline.reconstruct(&bytes, &options)?;
@@ -145,12 +148,13 @@ fn one(pipeline: &Pipeline, args: &FitArgs, path: &Path) -> anyhow::Result<()> {
     for (k, face) in recon.faces.iter().enumerate() {
         let base = args.out.join(format!("{stem}-face{}", k + 1));
         let record = outputs::face_record(model, face);
-        if let Some(r) = &record {
+        if let (Some(r), Ok(fit)) = (&record, &face.fit) {
             let mesh = match args.no_meshes {
                 true => None,
-                false => Some(outputs::fitted_mesh(model, &r.coefficients)?),
+                false => Some(outputs::face_mesh(model, fit)?),
             };
-            files::write_face(r, mesh.as_ref(), &base)?;
+            let displacement = fit.displacement.as_ref().map(|d| outputs::displacement_png(&d.map)).transpose()?;
+            files::write_face(r, mesh.as_ref(), displacement.as_ref().map(|d| &d.bytes[..]), &base)?;
         }
         let b = face.face.detection.face_box;
         faces_json.push(FaceJson {

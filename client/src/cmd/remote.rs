@@ -28,7 +28,9 @@ pub struct ServerArgs {
 
 #[derive(clap::Args, Clone)]
 pub struct RequestArgs {
-    /// `landmarks` (milliseconds per face) or `coarse` (the photometric fit, about a second).
+    /// `landmarks` (milliseconds per face), `coarse` (the photometric fit, about a second)
+    /// or `full` (then a displacement map, seconds; its 16-bit PNG is written beside the
+    /// record).
     #[arg(long, value_enum, default_value = "landmarks")]
     pub refine: RefineArg,
     /// At most this many faces per photo (0: the server's default).
@@ -46,6 +48,7 @@ pub struct RequestArgs {
 pub enum RefineArg {
     Landmarks,
     Coarse,
+    Full,
 }
 
 impl RequestArgs {
@@ -54,12 +57,14 @@ impl RequestArgs {
             refine: match self.refine {
                 RefineArg::Landmarks => pb::Refine::Landmarks,
                 RefineArg::Coarse => pb::Refine::Coarse,
+                RefineArg::Full => pb::Refine::Full,
             } as i32,
             max_faces: self.max_faces,
             outputs: Some(pb::Outputs {
                 mesh_arrays: !self.no_meshes,
                 overlay: !self.no_pictures,
                 side_by_side: !self.no_pictures,
+                displacement_map: matches!(self.refine, RefineArg::Full),
                 ..Default::default()
             }),
             ..Default::default()
@@ -91,11 +96,13 @@ pub fn write(model: &ModelTopology, answer: &Reconstruction, out: &Path, stem: &
     for (k, face) in answer.faces.iter().enumerate() {
         let Some(record) = face.record(&model.info) else { continue };
         fitted += 1;
-        let mesh = match face.fit.as_ref().ok().and_then(|f| f.mesh.as_ref()) {
+        let fit = face.fit.as_ref().ok();
+        let mesh = match fit.and_then(|f| f.mesh.as_ref()) {
             Some(arrays) => Some(model.mesh(arrays)?),
             None => None,
         };
-        files::write_face(&record, mesh.as_ref(), &out.join(format!("{stem}-face{}", k + 1)))?;
+        let displacement = fit.and_then(|f| f.displacement_png.as_deref());
+        files::write_face(&record, mesh.as_ref(), displacement, &out.join(format!("{stem}-face{}", k + 1)))?;
     }
     if let Some(png) = &answer.overlay_png {
         files::write_picture(out, stem, files::OVERLAY, png)?;

@@ -3,9 +3,11 @@
 //! (fitted albedo × SH shading) rendered into the face's 224² crop, and compared with the
 //! photo's crop inside the model's narrow face region: PSNR and SSIM (DESIGN §8).
 //! The landmark level has the mean albedo under uniform light: its figure is the baseline
-//! the photometric fit improves on.
+//! the photometric fit improves on. With `--full`, the full level too: the coarse and full
+//! figures then come from one run (the full level is the coarse fit plus its map).
 //!
-//!     cargo run --release -p facerecon-eval --example photometric_300w -- [--subset afw/ …] [--limit N]
+//!     cargo run --release -p facerecon-eval --example photometric_300w -- \
+//!         [--subset afw/ …] [--limit N] [--full [--smooth λ] [--magnitude λ] [--lr mm] [--iterations N]]
 
 use facerecon_eval::photometric::{Rgb, psnr, ssim};
 use facerecon_recon::{FaceSource, Options, Pipeline, Refine, outputs};
@@ -16,12 +18,23 @@ fn main() {
     let photos = facerecon_model::ict::shared_dir().join("data/faces-300w");
     let mut subsets: Vec<String> = Vec::new();
     let mut limit = usize::MAX;
+    let mut full = false;
+    let mut settings = facerecon_fit::displacement::DisplacementSettings::default();
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
+        if a == "--full" {
+            full = true;
+            continue;
+        }
         let v = args.next().unwrap_or_else(|| panic!("{a} needs a value"));
+        let num = || v.parse::<f64>().expect("number");
         match a.as_str() {
-            "--subset" => subsets.push(v),
+            "--subset" => subsets.push(v.clone()),
             "--limit" => limit = v.parse().expect("number"),
+            "--smooth" => settings.lambda_smooth = num(),
+            "--magnitude" => settings.lambda_magnitude = num(),
+            "--lr" => settings.learning_rate = num(),
+            "--iterations" => settings.iterations = v.parse().expect("number"),
             _ => panic!("unknown argument {a}"),
         }
     }
@@ -29,34 +42,57 @@ fn main() {
     rows.truncate(limit);
     let model = facerecon_model::ict::load_default().expect("default model");
     let front = FrontEnd::load_standard(facerecon_vision::landmarks::DEFAULT_MODEL_PATH.as_ref()).expect("front end");
-    let pipeline = Pipeline::new(model.clone(), front).expect("pipeline");
+    let mut pipeline = Pipeline::new(model.clone(), front).expect("pipeline");
+    pipeline.displacement = settings;
+    let levels = if full { 3 } else { 2 };
     let start = std::time::Instant::now();
-    let results: Vec<[[f64; 2]; 2]> = rows
+    let results: Vec<([[f64; 2]; 3], [f64; 3])> = rows
         .par_iter()
         .filter_map(|rel| {
             let img = photos.join(rel);
             let bytes = std::fs::read(&img).ok()?;
             let pts = facerecon_vision::pts::read(&std::fs::read(img.with_extension("pts")).ok()?).ok()?;
-            let mut out = [[f64::NAN; 2]; 2];
-            for (k, refine) in [Refine::Landmarks, Refine::Coarse].into_iter().enumerate() {
-                let o = Options { faces: FaceSource::Landmarks(vec![pts.clone()]), refine, ..Default::default() };
-                let r = pipeline.reconstruct(&bytes, &o).ok()?;
-                let face = r.faces.first()?;
-                let fit = face.fit.as_ref().ok()?;
+            let mut out = [[f64::NAN; 2]; 3];
+            let mut extra = [f64::NAN; 3];
+            let mut score = |k: usize,
+                             r: &facerecon_recon::Reconstruction,
+                             face: &facerecon_recon::FaceRecon,
+                             fit: &facerecon_recon::FaceFit|
+             -> Option<()> {
                 let photo = facerecon_vision::crop::crop_face(&r.image, &face.face.landmark_box).image;
-                let (frame, mask) = outputs::render_reconstruction(&model, &fit.coefficients).ok()?;
+                let (frame, mask) = outputs::render_reconstruction(&model, fit).ok()?;
                 let a: Vec<[f32; 3]> = photo.pixels().map(|p| p.0.map(|c| c as f32 / 255.0)).collect();
                 let b: Vec<[f32; 3]> =
                     frame.color.iter().map(|c| [c[0], c[1], c[2]].map(|x| x as f32 / 255.0)).collect();
                 let (ra, rb) =
                     (Rgb { width: 224, height: 224, pixels: &a }, Rgb { width: 224, height: 224, pixels: &b });
                 out[k] = [psnr(&ra, &rb, &mask)?, ssim(&ra, &rb, &mask)?];
+                Some(())
+            };
+            let last = if full { Refine::Full } else { Refine::Coarse };
+            for (k, refine) in [Refine::Landmarks, last].into_iter().enumerate() {
+                let o = Options { faces: FaceSource::Landmarks(vec![pts.clone()]), refine, ..Default::default() };
+                let r = pipeline.reconstruct(&bytes, &o).ok()?;
+                let face = r.faces.first()?;
+                let fit = face.fit.as_ref().ok()?;
+                if let Some(d) = &fit.displacement {
+                    let s = d.summary;
+                    extra = [s.iterations as f64, s.min_mm as f64, s.max_mm as f64];
+                }
+                if refine == Refine::Full {
+                    // The coarse level is the same fit without its map.
+                    let coarse = facerecon_recon::FaceFit { displacement: None, ..fit.clone() };
+                    score(1, &r, face, &coarse)?;
+                    score(2, &r, face, fit)?;
+                } else {
+                    score(k, &r, face, fit)?;
+                }
             }
-            Some(out)
+            Some((out, extra))
         })
         .collect();
     let stat = |k: usize, m: usize| {
-        let mut v: Vec<f64> = results.iter().map(|r| r[k][m]).collect();
+        let mut v: Vec<f64> = results.iter().map(|r| r.0[k][m]).collect();
         v.sort_by(f64::total_cmp);
         (v.iter().sum::<f64>() / v.len().max(1) as f64, v.get(v.len() / 2).copied().unwrap_or(f64::NAN))
     };
@@ -66,9 +102,18 @@ fn main() {
         rows.len(),
         start.elapsed().as_secs_f64()
     );
-    for (k, name) in ["landmarks", "coarse"].iter().enumerate() {
+    for (k, name) in ["landmarks", "coarse", "full"].iter().enumerate().take(levels) {
         let (p, pm) = stat(k, 0);
         let (s, sm) = stat(k, 1);
         println!("  {name:9}: PSNR {p:.2} dB (median {pm:.2}), SSIM {s:.3} (median {sm:.3})");
+    }
+    if full {
+        let mean = |i: usize| results.iter().map(|r| r.1[i]).sum::<f64>() / results.len().max(1) as f64;
+        println!(
+            "  displacement: {:.0} iterations on average, offsets {:.2} to {:.2} mm on average",
+            mean(0),
+            mean(1),
+            mean(2)
+        );
     }
 }

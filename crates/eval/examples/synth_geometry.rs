@@ -8,14 +8,16 @@
 //! on the same faces: a fit means something only where it beats that.
 //!
 //!     cargo run --release -p facerecon-eval --example synth_geometry -- [--per-bucket N] [--seed S] \
-//!         [--buckets 0,1,2,3] [--sigma S] [--lambda-id L] [--lambda-exp L] [--coarse [--iterations N]]
+//!         [--buckets 0,1,2,3] [--sigma S] [--lambda-id L] [--lambda-exp L] [--coarse [--iterations N]] \
+//!         [--full [--smooth λ] [--lr mm]]
 //!
-//! `--coarse` adds the photometric fit started from the exact landmarks' landmark fit.
+//! `--coarse` adds the photometric fit started from the exact landmarks' landmark fit;
+//! `--full` the displacement map on it too (the coarse figure then comes from the same run).
 
 use facerecon_eval::align::Metric;
 use facerecon_eval::geometry::{self, ErrorStats, GeometryCase};
 use facerecon_model::scene::vertex_normals;
-use facerecon_model::{Coefficients, Extent, MorphableModel};
+use facerecon_model::{Coefficients, DisplacementMap, Extent, MorphableModel};
 use facerecon_recon::{FaceSource, Options, Pipeline, Refine};
 use facerecon_synth::{Generator, SynthConfig};
 use facerecon_vision::face::FaceBox;
@@ -25,17 +27,35 @@ use rayon::prelude::*;
 
 const ICP_ITERATIONS: usize = 30;
 
-fn shape(model: &MorphableModel, identity: &[f32], expression: &[f32]) -> (Vec<DVec3>, Vec<DVec3>) {
-    let p = model.shape(identity, expression, Extent::Face).expect("shape");
-    let n = vertex_normals(&p, model.extent_triangles(Extent::Face));
+/// Model-space face-area points and normals of `identity` and `expression`, moved along the
+/// normals by `map` when given (the map is pose-free: offsets along the normal).
+fn shape(
+    model: &MorphableModel,
+    identity: &[f32],
+    expression: &[f32],
+    map: Option<&DisplacementMap>,
+) -> (Vec<DVec3>, Vec<DVec3>) {
+    let mut p = model.shape(identity, expression, Extent::Face).expect("shape");
+    let tris = model.extent_triangles(Extent::Face);
+    let mut n = vertex_normals(&p, tris);
+    if let Some(map) = map {
+        let uvs = &model.vertex_uvs()[..p.len()];
+        map.displace(&mut p, &n, uvs);
+        n = vertex_normals(&p, tris);
+    }
     let d = |v: &[[f32; 3]]| v.iter().map(|x| glam::Vec3::from(*x).as_dvec3()).collect::<Vec<_>>();
     (d(&p), d(&n))
 }
 
 /// Per-face mean error (mm) of `pred` against `truth`, both model space: point-to-plane,
 /// then point-to-point.
-fn errors(model: &MorphableModel, pred: &Coefficients, truth: &(Vec<DVec3>, Vec<DVec3>)) -> [f64; 2] {
-    let (p, pn) = shape(model, &pred.identity, &pred.expression);
+fn errors(
+    model: &MorphableModel,
+    pred: &Coefficients,
+    map: Option<&DisplacementMap>,
+    truth: &(Vec<DVec3>, Vec<DVec3>),
+) -> [f64; 2] {
+    let (p, pn) = shape(model, &pred.identity, &pred.expression, map);
     let lm = model.landmarks();
     let pairs: Vec<(usize, usize)> = lm.iter().map(|&i| (i as usize, i as usize)).collect();
     let case = GeometryCase {
@@ -60,6 +80,8 @@ struct Row {
     /// photometric L1 before / after.
     coarse: Vec<[f64; 2]>,
     coarse_info: Vec<[f64; 3]>,
+    /// The coarse fit with its displacement map.
+    full: Vec<[f64; 2]>,
     /// Inner-49 NME of the detected landmarks against the truth's (visible faces).
     landmark_nme: Vec<f64>,
 }
@@ -70,11 +92,14 @@ fn main() {
     let mut settings = facerecon_fit::LandmarkFitSettings::default();
     let mut buckets: Vec<u8> = vec![0, 1, 2, 3];
     let mut coarse = false;
+    let mut full = false;
     let mut iterations: Option<usize> = None;
+    let mut displacement = facerecon_fit::displacement::DisplacementSettings::default();
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
-        if a == "--coarse" {
+        if a == "--coarse" || a == "--full" {
             coarse = true;
+            full |= a == "--full";
             continue;
         }
         let v = args.next().unwrap_or_else(|| panic!("{a} needs a value"));
@@ -85,6 +110,8 @@ fn main() {
             "--lambda-id" => settings.identity_weight = v.parse().expect("number"),
             "--lambda-exp" => settings.expression_weight = v.parse().expect("number"),
             "--iterations" => iterations = Some(v.parse().expect("number")),
+            "--smooth" => displacement.lambda_smooth = v.parse().expect("number"),
+            "--lr" => displacement.learning_rate = v.parse().expect("number"),
             "--buckets" => buckets = v.split(',').map(|b| b.parse().expect("bucket 0-3")).collect(),
             _ => panic!("unknown argument {a}"),
         }
@@ -96,6 +123,7 @@ fn main() {
     if let Some(n) = iterations {
         pipeline.photometric.iterations = n;
     }
+    pipeline.displacement = displacement;
     let start = std::time::Instant::now();
     println!(
         "synthetic geometry error, {per_bucket} faces per bucket, seed {seed}, yaw ≤ 60°, ICP {ICP_ITERATIONS} iterations; {settings:?}"
@@ -111,23 +139,31 @@ fn main() {
             .map(|i| {
                 let s = generator.sample(seed * 100 + bucket as u64, i).expect("sample");
                 let c = &s.truth.coefficients;
-                let truth = shape(&model, &c.identity, &c.expression);
-                let both = |pred: &Coefficients| errors(&model, pred, &truth);
+                let truth = shape(&model, &c.identity, &c.expression, None);
+                let both = |pred: &Coefficients| errors(&model, pred, None, &truth);
                 let mut neutral = c.clone();
                 neutral.identity.iter_mut().for_each(|x| *x = 0.0);
                 neutral.expression.iter_mut().for_each(|x| *x = 0.0);
                 let mut row = Row { mean_face: vec![both(&neutral)], ..Default::default() };
                 let exact: Vec<[f32; 2]> = s.truth.landmarks.iter().map(|l| l.xy).collect();
-                let refine = if coarse { Refine::Coarse } else { Refine::Landmarks };
+                let refine = match (coarse, full) {
+                    (_, true) => Refine::Full,
+                    (true, false) => Refine::Coarse,
+                    _ => Refine::Landmarks,
+                };
                 let opts = Options { faces: FaceSource::Landmarks(vec![exact.clone()]), refine, ..Default::default() };
                 let t0 = std::time::Instant::now();
                 if let Ok(r) = pipeline.reconstruct_image(s.image.clone(), &opts)
                     && let Some(Ok(f)) = r.faces.first().map(|f| &f.fit)
                 {
                     row.from_truth.push(both(&f.landmark_fit.coefficients));
+                    // (The coarse row's seconds include the displacement stage with --full.)
                     if let Some(p) = &f.photometric {
                         row.coarse.push(both(&f.coefficients));
                         row.coarse_info.push([t0.elapsed().as_secs_f64(), p.loss_start, p.loss_end]);
+                    }
+                    if let Some(d) = &f.displacement {
+                        row.full.push(errors(&model, &f.coefficients, Some(&d.map), &truth));
                     }
                 }
                 let tbox = FaceBox::of_points(exact.iter().copied()).expect("box");
@@ -171,6 +207,9 @@ fn main() {
                 info.iter().map(|x| x[2]).sum::<f64>() / n,
                 info.len()
             );
+        }
+        if full {
+            println!("  bucket {bucket}: full fit (coarse + displacement map): {}", fmt(all(|r| &r.full)));
         }
         let lm: Vec<f64> = rows.iter().flat_map(|r| r.landmark_nme.iter().copied()).collect();
         let lm_nme =

@@ -9,17 +9,18 @@
 //!
 //! Where a face's coefficients start ([`Start`]): the landmark fit, or the learned encoder
 //! ([`facerecon_nn::Encoder`], one batch per photo). Refinement levels: [`Refine::None`]
-//! (the encoder's answer as it is), [`Refine::Landmarks`] (the landmark fit, milliseconds)
-//! and [`Refine::Coarse`] (the photometric fit on the face's crop from the start, about a
-//! second); the displacement stage comes with the fitting work still open.
+//! (the encoder's answer as it is), [`Refine::Landmarks`] (the landmark fit, milliseconds),
+//! [`Refine::Coarse`] (the photometric fit on the face's crop from the start, about a
+//! second) and [`Refine::Full`] (then a displacement map on the coarse surface, seconds).
 
 pub mod outputs;
 
 use std::sync::Arc;
 
+use facerecon_fit::displacement::{self, DisplacementSettings};
 use facerecon_fit::photometric::{self, PhotometricSettings};
 use facerecon_fit::{FitError, LandmarkFit, LandmarkFitter};
-use facerecon_model::{Coefficients, ErrorKind, Extent, MorphableModel};
+use facerecon_model::{Coefficients, DisplacementMap, ErrorKind, Extent, MorphableModel};
 use facerecon_nn::{CropBatch, Encoder};
 use facerecon_vision::crop::{self, Bucket, CROP_SIZE, CropTransform};
 use facerecon_vision::decode::{self, DecodeLimits};
@@ -39,6 +40,9 @@ pub enum Refine {
     Landmarks,
     /// Then all coefficients (albedo and light too) by the photometric fit on the crop.
     Coarse,
+    /// Then a displacement map (offsets along the normal in UV space) on the coarse fit's
+    /// surface: mid-level detail the linear model cannot express (seconds per face).
+    Full,
 }
 
 /// Where a face's coefficients start.
@@ -134,8 +138,10 @@ pub struct FaceFit {
     /// contour-aware landmark vertices serve either way).
     pub landmark_fit: LandmarkFit,
     /// Iterations, first and last loss, and the final mean absolute colour difference of
-    /// the photometric fit (at [`Refine::Coarse`]).
+    /// the photometric fit (at [`Refine::Coarse`] and [`Refine::Full`]).
     pub photometric: Option<PhotometricSummary>,
+    /// The displacement map on the coarse surface (at [`Refine::Full`]).
+    pub displacement: Option<FaceDisplacement>,
     /// The fitted model's 68 landmark vertices projected into the image, pixels.
     pub fitted_landmarks: Vec<[f32; 2]>,
     /// Root mean square landmark residual, image pixels.
@@ -150,6 +156,26 @@ pub struct PhotometricSummary {
     pub loss_end: f64,
     /// Mean absolute colour difference over the face's pixels, 0–1 scale.
     pub color_l1: f64,
+}
+
+/// A face's displacement map and what its fit did.
+#[derive(Clone, Debug)]
+pub struct FaceDisplacement {
+    pub map: DisplacementMap,
+    pub summary: DisplacementSummary,
+}
+
+/// What the displacement stage did.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct DisplacementSummary {
+    pub iterations: usize,
+    /// Mean absolute colour difference over the face's pixels, 0–1 scale: of the coarse
+    /// surface, and with the map.
+    pub color_l1_start: f64,
+    pub color_l1: f64,
+    /// The map's smallest and largest offset, mm.
+    pub min_mm: f32,
+    pub max_mm: f32,
 }
 
 /// Why one face of a photo was not fitted.
@@ -176,6 +202,7 @@ pub struct Pipeline {
     fitter: LandmarkFitter,
     pub limits: DecodeLimits,
     pub photometric: PhotometricSettings,
+    pub displacement: DisplacementSettings,
     encoder: Option<Arc<dyn Encoder>>,
 }
 
@@ -188,6 +215,7 @@ impl Pipeline {
             fitter,
             limits: DecodeLimits::default(),
             photometric: PhotometricSettings::default(),
+            displacement: DisplacementSettings::default(),
             encoder: None,
         })
     }
@@ -256,7 +284,7 @@ impl Pipeline {
         let bad = |m: &str| Err(ReconError::Options(m.into()));
         match (options.start, options.refine) {
             (Start::Encoder, _) if self.encoder.is_none() => bad("no encoder is loaded"),
-            (Start::Encoder, Refine::Landmarks) => bad("with the encoder, refine none or coarse"),
+            (Start::Encoder, Refine::Landmarks) => bad("with the encoder, refine none, coarse or full"),
             (Start::Landmarks, Refine::None) => bad("refine none is the encoder alone: start from the encoder"),
             _ => Ok(()),
         }
@@ -348,20 +376,44 @@ impl Pipeline {
             self.fitter.fit(&pts, Some(&face.landmarks.confidence)).map_err(|e| FaceError::Fit(e.to_string()))?;
         let start_kind = if start.is_some() { Start::Encoder } else { Start::Landmarks };
         let start = start.unwrap_or_else(|| landmark_fit.coefficients.clone());
-        let (coefficients, photometric) = match refine {
-            Refine::None | Refine::Landmarks => (start, None),
-            Refine::Coarse => {
+        let fit_err = |e: FitError| FaceError::Fit(e.to_string());
+        let (coefficients, photometric, displacement) = match refine {
+            Refine::None | Refine::Landmarks => (start, None, None),
+            Refine::Coarse | Refine::Full => {
                 let crop_image = crop::crop_face(image, &face.landmark_box).image;
-                let p =
-                    photometric::fit(&self.model, &crop_image, &pts, &landmark_fit.vertices, &start, &self.photometric)
-                        .map_err(|e| FaceError::Fit(e.to_string()))?;
+                let vertices = &landmark_fit.vertices;
+                let p = photometric::fit(&self.model, &crop_image, &pts, vertices, &start, &self.photometric)
+                    .map_err(fit_err)?;
                 let summary = PhotometricSummary {
                     iterations: p.iterations,
                     loss_start: p.losses.first().copied().unwrap_or(f64::NAN),
                     loss_end: p.losses.last().copied().unwrap_or(f64::NAN),
                     color_l1: p.photometric_l1,
                 };
-                (p.coefficients, Some(summary))
+                let displacement = match refine {
+                    Refine::Full => {
+                        let d = displacement::fit(
+                            &self.model,
+                            &crop_image,
+                            &pts,
+                            vertices,
+                            &p.coefficients,
+                            &self.displacement,
+                        )
+                        .map_err(fit_err)?;
+                        let (min_mm, max_mm) = d.map.range();
+                        let summary = DisplacementSummary {
+                            iterations: d.iterations,
+                            color_l1_start: d.photometric_l1_start,
+                            color_l1: d.photometric_l1,
+                            min_mm,
+                            max_mm,
+                        };
+                        Some(FaceDisplacement { map: d.map, summary })
+                    }
+                    _ => None,
+                };
+                (p.coefficients, Some(summary), displacement)
             }
         };
         let fitted_landmarks = self
@@ -379,6 +431,7 @@ impl Pipeline {
             coefficients,
             landmark_fit,
             photometric,
+            displacement,
             fitted_landmarks,
             landmark_rms_px,
         })

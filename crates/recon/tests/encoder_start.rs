@@ -66,7 +66,7 @@ fn start_and_refine_that_do_not_go_together_are_refused() {
     img.write_to(&mut png, image::ImageFormat::Png).unwrap();
     let png = png.into_inner();
     for (start, refine, why) in [
-        (Start::Encoder, Refine::Landmarks, "refine none or coarse"),
+        (Start::Encoder, Refine::Landmarks, "refine none, coarse or full"),
         (Start::Landmarks, Refine::None, "start from the encoder"),
     ] {
         let e = p.reconstruct(&png, &Options { start, refine, ..Default::default() }).unwrap_err();

@@ -58,7 +58,7 @@ fn annotated_and_detected_faces_are_fitted_and_exported() {
         assert_eq!(back.expression_weights.len(), 53);
         assert_eq!(back.expression_weights[0].0, "browDown_L");
 
-        let mesh = outputs::fitted_mesh(p.model(), &record.coefficients).unwrap();
+        let mesh = outputs::fitted_mesh(p.model(), &record.coefficients, None).unwrap();
         let n = p.model().face_vertex_count();
         let mut g = Vec::new();
         glb::write_glb(&mesh, &mut g).unwrap();
@@ -102,6 +102,66 @@ fn the_coarse_fit_lowers_its_loss_and_keeps_the_landmarks() {
     assert_ne!(fit.coefficients.albedo, fit.landmark_fit.coefficients.albedo);
     let sbs = outputs::side_by_side(p.model(), &r).unwrap().unwrap();
     assert_eq!(sbs.dimensions(), (5 * 224 + 16, 228));
+}
+
+#[test]
+fn the_full_fit_adds_a_displacement_map_that_lowers_the_colour_error() {
+    let p = pipeline();
+    let (bytes, truth) = photo("lfpw/testset/image_0003.png");
+    let o = Options { faces: FaceSource::Landmarks(vec![truth]), refine: Refine::Full, ..Default::default() };
+    let r = p.reconstruct(&bytes, &o).unwrap();
+    let fit = r.faces[0].fit.as_ref().unwrap();
+    assert_eq!(fit.refine, Refine::Full);
+    let d = fit.displacement.as_ref().expect("a displacement map at the full level");
+    let s = d.summary;
+    eprintln!("displacement: {s:?}");
+    // The map explains part of what the coarse surface leaves: less colour error, offsets
+    // of a few millimetres (mid-level detail, not a new face).
+    assert!(s.color_l1 < 0.95 * s.color_l1_start, "{s:?}");
+    assert!(s.max_mm > 0.1 && s.min_mm < -0.1 && s.max_mm < 8.0 && s.min_mm > -8.0, "{s:?}");
+    assert_eq!(d.map.size(), 256);
+
+    // The mesh carries the map: each vertex moved along the coarse surface's normal by the
+    // map's bilinear value at its UV (checked against a hand-written lookup).
+    let coarse = outputs::fitted_mesh(p.model(), &fit.coefficients, None).unwrap();
+    let full = outputs::face_mesh(p.model(), fit).unwrap();
+    let uvs = coarse.uvs.as_ref().unwrap();
+    let normals = coarse.normals.as_ref().unwrap();
+    let lookup = |uv: [f32; 2]| {
+        let n = 256.0f32;
+        let x = (uv[0] * n - 0.5).clamp(0.0, n - 1.0);
+        let y = ((1.0 - uv[1]) * n - 0.5).clamp(0.0, n - 1.0);
+        let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+        let (x1, y1) = ((x0 + 1).min(255), (y0 + 1).min(255));
+        let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+        let v = |x: usize, y: usize| d.map.values()[y * 256 + x];
+        (1.0 - fy) * ((1.0 - fx) * v(x0, y0) + fx * v(x1, y0)) + fy * ((1.0 - fx) * v(x0, y1) + fx * v(x1, y1))
+    };
+    let mut moved = 0;
+    for k in (0..coarse.positions.len()).step_by(37) {
+        let want = lookup(uvs[k]);
+        let n = glam::Vec3::from(normals[k]);
+        let got = glam::Vec3::from(full.positions[k]) - glam::Vec3::from(coarse.positions[k]);
+        assert!((got - n * want).length() < 1e-3, "vertex {k}: moved {got:?}, expected {want} mm along {n:?}");
+        moved += usize::from(want.abs() > 0.05);
+    }
+    assert!(moved > 10, "only {moved} sampled vertices moved");
+
+    // The 16-bit PNG, read back by the image crate (an independent decoder) with the scale
+    // and offset the encoder reports, and by our own reader (which takes them from the file).
+    let png = outputs::displacement_png(&d.map).unwrap();
+    let decoded = image::load_from_memory(&png.bytes).unwrap().into_luma16();
+    assert_eq!(decoded.dimensions(), (256, 256));
+    let step = png.scale_mm;
+    for (v, m) in decoded.pixels().zip(d.map.values()) {
+        assert!((png.offset_mm + png.scale_mm * v[0] as f32 - m).abs() <= step, "{v:?} vs {m}");
+    }
+    let back = outputs::read_displacement_png(&png.bytes).unwrap();
+    assert!(back.values().iter().zip(d.map.values()).all(|(a, b)| (a - b).abs() <= step));
+
+    // The record says what the stage did.
+    let record = outputs::face_record(p.model(), &r.faces[0]).unwrap();
+    assert_eq!(record.displacement, Some(s));
 }
 
 #[test]
