@@ -45,6 +45,8 @@ pub enum ExportError {
     Empty { format: &'static str, vertices: usize, triangles: usize },
     #[error("mesh too large for {format}: {what}")]
     TooLarge { format: &'static str, what: String },
+    #[error("a textured {format} export needs the mesh's {attribute}")]
+    MissingAttribute { format: &'static str, attribute: &'static str },
     #[error("invalid material library name {0:?}: it must be a plain file name without whitespace")]
     MaterialName(String),
     #[error("writing the mesh failed: {0}")]

@@ -23,7 +23,21 @@ const ELEMENT_ARRAY_BUFFER: u32 = 34963;
 ///
 /// Normals are normalised (glTF requires unit length); a zero normal, which only a vertex
 /// that no triangle uses can have, is written as +Z.
-pub fn write_glb<W: Write>(mesh: &Mesh, mut out: W) -> Result<(), ExportError> {
+pub fn write_glb<W: Write>(mesh: &Mesh, out: W) -> Result<(), ExportError> {
+    write(mesh, None, out)
+}
+
+/// Writes `mesh` as a `.glb` file whose material's base colour is `texture_png` (an sRGB PNG
+/// addressed by the mesh's UVs, embedded in the file). The texture replaces the vertex
+/// colours, which are left out (glTF would multiply the two).
+pub fn write_glb_textured<W: Write>(mesh: &Mesh, texture_png: &[u8], out: W) -> Result<(), ExportError> {
+    if mesh.uvs.is_none() {
+        return Err(ExportError::MissingAttribute { format: "glTF", attribute: "UVs" });
+    }
+    write(mesh, Some(texture_png), out)
+}
+
+fn write<W: Write>(mesh: &Mesh, texture_png: Option<&[u8]>, mut out: W) -> Result<(), ExportError> {
     mesh.validate()?;
     let n = mesh.positions.len();
     if n == 0 || mesh.triangles.is_empty() {
@@ -63,7 +77,7 @@ pub fn write_glb<W: Write>(mesh: &Mesh, mut out: W) -> Result<(), ExportError> {
         let flat: Vec<f32> = normals.iter().flat_map(|&v| unit_or_z(v)).collect();
         attributes.insert("NORMAL".into(), json!(push(&mut bin, &flat, "VEC3", 3, ARRAY_BUFFER, false)));
     }
-    if let Some(colors) = &mesh.colors {
+    if let (Some(colors), None) = (&mesh.colors, texture_png) {
         let flat: Vec<f32> = colors.iter().flatten().map(|c| c.clamp(0.0, 1.0)).collect();
         attributes.insert("COLOR_0".into(), json!(push(&mut bin, &flat, "VEC3", 3, ARRAY_BUFFER, false)));
     }
@@ -85,8 +99,26 @@ pub fn write_glb<W: Write>(mesh: &Mesh, mut out: W) -> Result<(), ExportError> {
         "count": mesh.triangles.len() * 3, "type": "SCALAR",
     }));
     let indices = accessors.len() - 1;
+    let mut pbr = json!({ "baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0, "roughnessFactor": 0.8 });
+    let mut textures = serde_json::Map::new();
+    if let Some(png) = texture_png {
+        // The image follows the indices in the BIN chunk, in a view of its own (no target).
+        while !bin.len().is_multiple_of(4) {
+            bin.push(0);
+        }
+        views.push(json!({ "buffer": 0, "byteOffset": bin.len(), "byteLength": png.len() }));
+        bin.extend_from_slice(png);
+        textures.insert("images".into(), json!([{ "bufferView": views.len() - 1, "mimeType": "image/png" }]));
+        // Linear filtering, mipmaps, clamped at the edges.
+        textures.insert(
+            "samplers".into(),
+            json!([{ "magFilter": 9729, "minFilter": 9987, "wrapS": 33071, "wrapT": 33071 }]),
+        );
+        textures.insert("textures".into(), json!([{ "source": 0, "sampler": 0 }]));
+        pbr["baseColorTexture"] = json!({ "index": 0, "texCoord": 0 });
+    }
 
-    let doc = json!({
+    let mut doc = json!({
         "asset": { "version": "2.0", "generator": concat!("facerecon ", env!("CARGO_PKG_VERSION")) },
         "scene": 0,
         "scenes": [{ "nodes": [0] }],
@@ -94,14 +126,14 @@ pub fn write_glb<W: Write>(mesh: &Mesh, mut out: W) -> Result<(), ExportError> {
         "meshes": [{ "name": "face", "primitives": [{
             "attributes": Value::Object(attributes), "indices": indices, "mode": 4, "material": 0,
         }]}],
-        "materials": [{
-            "name": "skin",
-            "pbrMetallicRoughness": { "baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0, "roughnessFactor": 0.8 },
-        }],
+        "materials": [{ "name": "skin", "pbrMetallicRoughness": pbr }],
         "buffers": [{ "byteLength": bin.len() }],
         "bufferViews": views,
         "accessors": accessors,
     });
+    if let Some(obj) = doc.as_object_mut() {
+        obj.extend(textures);
+    }
     let mut json_bytes = serde_json::to_vec(&doc).expect("a JSON value always serialises");
     // Chunks are padded to 4 bytes: JSON with spaces, BIN with zeros (glTF 2.0 §4.4.3).
     while !json_bytes.len().is_multiple_of(4) {
@@ -228,6 +260,33 @@ mod tests {
         let nrm: Vec<[f32; 3]> = prim.reader(|_| Some(&blob[..])).read_normals().unwrap().collect();
         assert_eq!(nrm[0], [0.0, 0.6, 0.8]);
         assert_eq!(nrm[1], [0.0, 0.0, 1.0]);
+    }
+
+    #[test]
+    fn a_texture_is_embedded_and_replaces_the_vertex_colours() {
+        let mesh = test_meshes::full();
+        let png = b"\x89PNG\r\n\x1a\n stand-in bytes, odd length".to_vec();
+        let mut bytes = Vec::new();
+        write_glb_textured(&mesh, &png, &mut bytes).unwrap();
+        let gltf = gltf::Gltf::from_slice(&bytes).expect("valid glTF");
+        let blob = gltf.blob.clone().unwrap();
+        assert_eq!(bytes.len() % 4, 0);
+        let material = gltf.materials().next().unwrap();
+        let info = material.pbr_metallic_roughness().base_color_texture().expect("a base colour texture");
+        assert_eq!(info.tex_coord(), 0);
+        match info.texture().source().source() {
+            gltf::image::Source::View { view, mime_type } => {
+                assert_eq!(mime_type, "image/png");
+                assert_eq!(&blob[view.offset()..view.offset() + view.length()], &png[..]);
+            }
+            other => panic!("the image should be in the BIN chunk, not {other:?}"),
+        }
+        let prim = gltf.meshes().next().unwrap().primitives().next().unwrap();
+        assert!(prim.get(&gltf::Semantic::Colors(0)).is_none());
+        assert!(prim.get(&gltf::Semantic::TexCoords(0)).is_some());
+        // Without UVs a texture means nothing.
+        let bare = Mesh { uvs: None, ..mesh };
+        assert!(matches!(write_glb_textured(&bare, &png, &mut Vec::new()), Err(ExportError::MissingAttribute { .. })));
     }
 
     #[test]

@@ -14,10 +14,8 @@ pub const MATERIAL_NAME: &str = "skin";
 /// library (write it with [`write_mtl`]) and uses its material.
 pub fn write_obj<W: Write>(mesh: &Mesh, out: W, mtl_file_name: Option<&str>) -> Result<(), ExportError> {
     mesh.validate()?;
-    if let Some(name) = mtl_file_name
-        && (name.is_empty() || name.chars().any(|c| c.is_whitespace() || c.is_control()))
-    {
-        return Err(ExportError::MaterialName(name.to_owned()));
+    if let Some(name) = mtl_file_name {
+        check_file_name(name)?;
     }
     let mut out = BufWriter::new(out);
     writeln!(out, "# facerecon mesh: {} vertices, {} triangles, mm", mesh.positions.len(), mesh.triangles.len())?;
@@ -66,9 +64,30 @@ pub fn write_obj<W: Write>(mesh: &Mesh, out: W, mtl_file_name: Option<&str>) -> 
 
 /// Writes the material library for [`write_obj`]: a white diffuse material, so that the
 /// vertex colours carry the colour.
-pub fn write_mtl<W: Write>(mut out: W) -> Result<(), ExportError> {
+pub fn write_mtl<W: Write>(out: W) -> Result<(), ExportError> {
+    mtl(out, None)
+}
+
+/// [`write_mtl`] with `texture_file_name` (a file beside the library) as the diffuse map.
+pub fn write_mtl_textured<W: Write>(out: W, texture_file_name: &str) -> Result<(), ExportError> {
+    check_file_name(texture_file_name)?;
+    mtl(out, Some(texture_file_name))
+}
+
+fn mtl<W: Write>(mut out: W, texture: Option<&str>) -> Result<(), ExportError> {
     write!(out, "# facerecon material\nnewmtl {MATERIAL_NAME}\nKa 0 0 0\nKd 1 1 1\nKs 0 0 0\nNs 10\nd 1\nillum 1\n")?;
+    if let Some(t) = texture {
+        writeln!(out, "map_Kd {t}")?;
+    }
     out.flush()?;
+    Ok(())
+}
+
+/// A file name the material library can refer to: plain, without whitespace.
+fn check_file_name(name: &str) -> Result<(), ExportError> {
+    if name.is_empty() || name.chars().any(|c| c.is_whitespace() || c.is_control()) {
+        return Err(ExportError::MaterialName(name.to_owned()));
+    }
     Ok(())
 }
 
@@ -85,6 +104,15 @@ mod tests {
         })
         .expect("tobj parses the export");
         (models, mats.expect("tobj parses the material library"))
+    }
+
+    #[test]
+    fn a_textured_material_names_its_diffuse_map() {
+        let mut mtl = Vec::new();
+        write_mtl_textured(&mut mtl, "face-texture.png").unwrap();
+        let (mats, _) = tobj::load_mtl_buf(&mut &mtl[..]).unwrap();
+        assert_eq!(mats[0].diffuse_texture.as_deref(), Some("face-texture.png"));
+        assert!(write_mtl_textured(&mut Vec::new(), "a b.png").is_err());
     }
 
     #[test]
