@@ -14,6 +14,7 @@
 //! second) and [`Refine::Full`] (then a displacement map on the coarse surface, seconds).
 
 pub mod outputs;
+pub mod texture;
 
 use std::sync::Arc;
 
