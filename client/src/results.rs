@@ -59,6 +59,9 @@ pub struct Fit {
     /// The displacement map as a 16-bit PNG (`facerecon_recon::outputs::displacement_png`),
     /// when asked for.
     pub displacement_png: Option<Vec<u8>>,
+    /// The face's texture in the model's UV space (PNG; `facerecon_recon::texture`), when
+    /// asked for.
+    pub texture_png: Option<Vec<u8>>,
     /// Vertex positions (camera space, mm), normals and shaded colours, when asked for.
     pub mesh: Option<MeshArrays>,
     /// Mesh files, when asked for.
@@ -231,6 +234,7 @@ fn fit_of(f: pb::Fit) -> Result<Fit, ClientError> {
             max_mm: d.max_mm,
         }),
         displacement_png: f.displacement.and_then(|d| (!d.png.is_empty()).then_some(d.png)),
+        texture_png: (!f.texture_png.is_empty()).then_some(f.texture_png),
         mesh,
         mesh_files,
     })

@@ -1,6 +1,6 @@
 //! The remote side of the `facerecon` command against a server on loopback:
 //! `reconstruct` writes exactly the files `fit` writes in-process (at the full level: meshes
-//! with the displacement map, and the map's PNG), and `bulk` streams a
+//! with the displacement map, the map's PNG, the texture), and `bulk` streams a
 //! folder with a bad file in it, resumes, and splits into shards.
 
 use std::path::{Path, PathBuf};
@@ -53,8 +53,9 @@ async fn reconstruct_writes_the_files_fit_writes() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let files = sorted_files(&remote);
     assert_eq!(files, sorted_files(&local));
-    assert_eq!(files.len(), 2 * 8, "{files:?}");
+    assert_eq!(files.len(), 2 * 9, "{files:?}");
     assert!(files.iter().any(|f| f.ends_with("-face1-displacement.png")), "{files:?}");
+    assert!(files.iter().any(|f| f.ends_with("-face1-texture.png")), "{files:?}");
     for f in files {
         assert_eq!(std::fs::read(remote.join(&f)).unwrap(), std::fs::read(local.join(&f)).unwrap(), "{f} differs");
     }

@@ -4,8 +4,8 @@
 
 use facerecon_model::ErrorKind;
 use facerecon_model::mesh::{glb, obj, ply};
-use facerecon_recon::outputs;
 use facerecon_recon::{FaceSource, Options, ReconError, Reconstruction, Refine, Start};
+use facerecon_recon::{outputs, texture};
 use facerecon_vision::face::FaceBox;
 use tonic::Status;
 
@@ -22,6 +22,7 @@ pub struct Wanted {
     pub overlay: bool,
     pub side_by_side: bool,
     pub displacement_map: bool,
+    pub texture: bool,
 }
 
 /// A validated request: the engine's job without its deadline.
@@ -109,6 +110,7 @@ pub fn validate(req: pb::ReconstructRequest, max_faces: u32, has_encoder: bool) 
             overlay: out.overlay,
             side_by_side: out.side_by_side,
             displacement_map: out.displacement_map,
+            texture: out.texture,
         },
     })
 }
@@ -196,6 +198,7 @@ pub fn response(
                     mesh: None,
                     mesh_files: Vec::new(),
                     displacement: None,
+                    texture_png: Vec::new(),
                 };
                 let face_fit = f.fit.as_ref().ok();
                 if let Some(d) = face_fit.and_then(|x| x.displacement.as_ref()) {
@@ -215,6 +218,12 @@ pub fn response(
                     }
                     fit.displacement = Some(m);
                 }
+                if wanted.texture
+                    && let Some(t) = texture::face_texture(model, &recon.image, f, texture::TEXTURE_SIZE)
+                        .map_err(|e| internal("making the texture", e))?
+                {
+                    fit.texture_png = png(&t.image)?;
+                }
                 if let (Some(face_fit), true) = (face_fit, wanted.mesh_arrays || !wanted.mesh_files.is_empty()) {
                     let mesh = outputs::face_mesh(model, face_fit).map_err(|e| internal("building the mesh", e))?;
                     if wanted.mesh_arrays {
@@ -228,6 +237,9 @@ pub fn response(
                     for &format in &wanted.mesh_files {
                         let mut data = Vec::new();
                         match format {
+                            pb::MeshFormat::Glb if !fit.texture_png.is_empty() => {
+                                glb::write_glb_textured(&mesh, &fit.texture_png, &mut data)
+                            }
                             pb::MeshFormat::Glb => glb::write_glb(&mesh, &mut data),
                             pb::MeshFormat::Ply => ply::write_ply(&mesh, &mut data),
                             pb::MeshFormat::Obj => obj::write_obj(&mesh, &mut data, None),

@@ -53,6 +53,7 @@ async fn a_photo_gets_coefficients_meshes_and_pictures() {
             overlay: true,
             side_by_side: true,
             displacement_map: false,
+            texture: true,
         }),
         ..Default::default()
     };
@@ -82,6 +83,12 @@ async fn a_photo_gets_coefficients_meshes_and_pictures() {
     let files: Vec<_> = fit.mesh_files.iter().map(|(f, d)| (*f, d.clone())).collect();
     assert_eq!(files.len(), 3);
     assert_eq!(&files[0].1[..4], b"glTF");
+    // The texture: a 512² PNG, embedded in the GLB as its material's base colour.
+    let texture = fit.texture_png.as_ref().expect("the texture asked for");
+    let decoded = image::load_from_memory(texture).unwrap();
+    assert_eq!((decoded.width(), decoded.height()), (512, 512));
+    let gltf = gltf::Gltf::from_slice(&files[0].1).unwrap();
+    assert!(gltf.materials().next().unwrap().pbr_metallic_roughness().base_color_texture().is_some());
     assert!(files[1].1.starts_with(b"ply\n"));
     assert!(String::from_utf8_lossy(&files[2].1).contains(&format!("{} vertices", model.info.vertex_count)));
     let overlay = image::load_from_memory(r.overlay_png.as_ref().unwrap()).unwrap();

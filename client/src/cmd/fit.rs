@@ -1,7 +1,8 @@
 //! `facerecon fit IMAGE… -o DIR [--refine landmarks] [--encoder W] [--json] [--pts]`: 3D
 //! faces from photos, in-process. Per face `K` (1-based, largest first) of `<stem>`, in `DIR`:
 //! `<stem>-face<K>.glb`, `.ply`, `.obj` (+ `.mtl`), `.json` (coefficients, landmarks,
-//! residuals), `-displacement.png` at `--refine full`, and per photo `<stem>-overlay.png` and `<stem>-sidebyside.png` (photo |
+//! residuals), `-texture.png` (the photo in UV space), `-displacement.png` at
+//! `--refine full`, and per photo `<stem>-overlay.png` and `<stem>-sidebyside.png` (photo |
 //! reconstruction | shape | albedo | shading, a row per face). `--json` prints one line per photo.
 
 use std::path::{Path, PathBuf};
@@ -12,8 +13,8 @@ use anyhow::Context;
 
 use super::{ImageJson, files};
 use facerecon_model::MorphableModel;
-use facerecon_recon::outputs;
 use facerecon_recon::{FaceSource, Options, Pipeline, Refine, Start};
+use facerecon_recon::{outputs, texture};
 use facerecon_vision::pipeline::FrontEnd;
 
 #[derive(clap::Args)]
@@ -149,12 +150,21 @@ fn one(pipeline: &Pipeline, args: &FitArgs, path: &Path) -> anyhow::Result<()> {
         let base = args.out.join(format!("{stem}-face{}", k + 1));
         let record = outputs::face_record(model, face);
         if let (Some(r), Ok(fit)) = (&record, &face.fit) {
-            let mesh = match args.no_meshes {
-                true => None,
-                false => Some(outputs::face_mesh(model, fit)?),
+            let (mesh, texture) = match args.no_meshes {
+                true => (None, None),
+                false => {
+                    let t = texture::face_texture(model, &recon.image, face, texture::TEXTURE_SIZE)?;
+                    (Some(outputs::face_mesh(model, fit)?), t.map(|t| files::png(&t.image)).transpose()?)
+                }
             };
             let displacement = fit.displacement.as_ref().map(|d| outputs::displacement_png(&d.map)).transpose()?;
-            files::write_face(r, mesh.as_ref(), displacement.as_ref().map(|d| &d.bytes[..]), &base)?;
+            let face_files = files::FaceFiles {
+                record: r,
+                mesh: mesh.as_ref(),
+                texture_png: texture.as_deref(),
+                displacement_png: displacement.as_ref().map(|d| &d.bytes[..]),
+            };
+            files::write_face(&face_files, &base)?;
         }
         let b = face.face.detection.face_box;
         faces_json.push(FaceJson {

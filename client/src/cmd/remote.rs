@@ -65,6 +65,7 @@ impl RequestArgs {
                 overlay: !self.no_pictures,
                 side_by_side: !self.no_pictures,
                 displacement_map: matches!(self.refine, RefineArg::Full),
+                texture: !self.no_meshes,
                 ..Default::default()
             }),
             ..Default::default()
@@ -101,8 +102,13 @@ pub fn write(model: &ModelTopology, answer: &Reconstruction, out: &Path, stem: &
             Some(arrays) => Some(model.mesh(arrays)?),
             None => None,
         };
-        let displacement = fit.and_then(|f| f.displacement_png.as_deref());
-        files::write_face(&record, mesh.as_ref(), displacement, &out.join(format!("{stem}-face{}", k + 1)))?;
+        let face_files = files::FaceFiles {
+            record: &record,
+            mesh: mesh.as_ref(),
+            texture_png: fit.and_then(|f| f.texture_png.as_deref()),
+            displacement_png: fit.and_then(|f| f.displacement_png.as_deref()),
+        };
+        files::write_face(&face_files, &out.join(format!("{stem}-face{}", k + 1)))?;
     }
     if let Some(png) = &answer.overlay_png {
         files::write_picture(out, stem, files::OVERLAY, png)?;
