@@ -1,6 +1,7 @@
 //! Renders a textured `.glb` as `facerecon fit` writes it, read back by the `gltf` crate
 //! (an independent parser): positions, UVs, triangles and the embedded base-colour texture,
-//! seen by the fit's camera and turned about the face's centre by each yaw, in a row.
+//! seen from the fit's camera position with a 25 % wider view, turned about the face's
+//! centre by each yaw, in a row.
 //!
 //!     cargo run --release -p facerecon-recon --example render_glb -- FACE.glb OUT.png [YAW_DEG …]
 
@@ -14,7 +15,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         return Err("usage: render_glb FACE.glb OUT.png [YAW_DEG …]".into());
     };
     let yaws: Vec<f32> = args.map(|a| a.parse()).collect::<Result<_, _>>()?;
-    let yaws = if yaws.is_empty() { vec![0.0, 35.0, -60.0] } else { yaws };
+    let yaws = if yaws.is_empty() { vec![0.0, 30.0, -50.0] } else { yaws };
 
     let bytes = std::fs::read(&glb)?;
     let gltf = gltf::Gltf::from_slice(&bytes)?;
@@ -34,12 +35,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 
     let centre = positions.iter().map(|p| Vec3::from(*p)).sum::<Vec3>() / positions.len().max(1) as f32;
     let size = 512;
+    let base = Camera::default();
+    let camera = Camera { fov_y: 2.0 * ((0.5 * base.fov_y).tan() * 1.25).atan(), ..base };
     let mut row = image::RgbImage::from_pixel(size * yaws.len() as u32, size, image::Rgb([255, 255, 255]));
     for (k, yaw) in yaws.iter().enumerate() {
         let r = Mat3::from_rotation_y(yaw.to_radians());
         let turned: Vec<[f32; 3]> =
             positions.iter().map(|p| (r * (Vec3::from(*p) - centre) + centre).to_array()).collect();
-        let view = texture::render_textured(&turned, &triangles, &uvs, &image, Camera::default(), size)?;
+        let view = texture::render_textured(&turned, &triangles, &uvs, &image, camera, size)?;
         image::imageops::replace(&mut row, &view, (k as u32 * size) as i64, 0);
     }
     row.save(&out)?;

@@ -5,7 +5,8 @@
 //! Stages: decode (with limits) → faces (detected, or the caller's boxes, or the caller's
 //! 68 landmarks) → per face, in parallel: the crop frame ([`CropTransform`]) and the
 //! landmark fit in it ([`facerecon_fit::LandmarkFitter`]) → results mapped back to image
-//! pixels. Meshes and pictures are made on demand from a result ([`outputs`]).
+//! pixels. Meshes and pictures are made on demand from a result ([`outputs`]), and so is
+//! each face's texture in UV space ([`texture`]).
 //!
 //! Where a face's coefficients start ([`Start`]): the landmark fit, or the learned encoder
 //! ([`facerecon_nn::Encoder`], one batch per photo). Refinement levels: [`Refine::None`]
