@@ -1,6 +1,7 @@
-//! The photometric (coarse) fit per face on one thread (DESIGN §9: < 1 s on 2 cores): a
-//! synthetic bucket-0 face, started from the landmark fit of its exact landmarks, with the
-//! default settings (iteration cap included).
+//! The photometric (coarse) fit per face (DESIGN §9: < 1 s on 2 cores): a synthetic
+//! bucket-0 face, started from the landmark fit of its exact landmarks, with the default
+//! settings (Levenberg–Marquardt, iteration cap included), and Adam with its own default
+//! cap (80 iterations) in the same run as the reference.
 //!
 //!     cargo bench -p facerecon-fit --bench coarse_fit
 
@@ -22,10 +23,15 @@ fn benches(c: &mut Criterion) {
     let in_crop: Vec<[f32; 2]> = pts.iter().map(|p| cr.transform.to_crop(*p)).collect();
     let lf = LandmarkFitter::new(&model).unwrap().fit(&in_crop, None).unwrap();
     let settings = PhotometricSettings::default();
+    let adam_settings = PhotometricSettings { iterations: 80, ..settings };
     let run = || photometric::fit(&model, &cr.image, &in_crop, &lf.vertices, &lf.coefficients, &settings).unwrap();
-    let r = run();
-    eprintln!("coarse fit: {} iterations, loss {:.3} → {:.3}", r.iterations, r.losses[0], r.losses.last().unwrap());
+    let adam =
+        || photometric::fit_adam(&model, &cr.image, &in_crop, &lf.vertices, &lf.coefficients, &adam_settings).unwrap();
+    for (name, r) in [("coarse fit (LM)", run()), ("Adam", adam())] {
+        eprintln!("{name}: {} iterations, loss {:.3} → {:.3}", r.iterations, r.losses[0], r.losses.last().unwrap());
+    }
     c.bench_function("coarse_fit_per_face", |b| b.iter(|| black_box(run())));
+    c.bench_function("coarse_fit_per_face_adam", |b| b.iter(|| black_box(adam())));
 }
 
 criterion_group! {

@@ -10,6 +10,7 @@
 //! * [`decoder`] — the differentiable decoder: forward and vector–Jacobian product per
 //!   primitive, each checked against finite differences.
 //! * [`photometric`] — the coarse fit: every coefficient by Adam through the decoder.
+//! * [`levenberg`] — the same coarse fit by Levenberg–Marquardt (the measured alternative).
 //! * [`displacement`] — the displacement map after the coarse fit (thesis ch. 6).
 //! * [`landmark_fit`] — pose, then identity and expression by regularised least squares,
 //!   alternating (expressions kept in [0, 1]).
@@ -22,6 +23,7 @@ pub mod decoder;
 pub mod displacement;
 pub mod error;
 pub mod landmark_fit;
+pub mod levenberg;
 pub mod photometric;
 pub mod subset;
 

@@ -1,13 +1,15 @@
 //! The photometric fit (DESIGN §6, single image, Table 6.1's weights): all coefficients —
-//! identity, expression, albedo, 25×3 SH light, rotation, translation — by Adam on
+//! identity, expression, albedo, 25×3 SH light, rotation, translation — minimising
 //!
 //! `λph·ℓph + λlms·ℓlms + λid‖ws‖² + λexp‖we‖² + λtex‖wt‖²`, `we` kept in [0, 1],
 //!
 //! with `ℓph = (1/σph)·mean over covered pixels of ‖I(X) − Ī‖₁` (the rendered face against
-//! the crop) and `ℓlms = (1/68)·Σ‖π(v_j) − l_j‖₁` (crop pixels). Each iteration renders the
-//! visibility buffer on the CPU, interpolates the shaded vertex colours, and back-propagates
-//! through the decoder's VJPs ([`crate::decoder`]): colours → shading (albedo, light,
-//! normals) → normals → positions, and positions also through the barycentrics.
+//! the crop) and `ℓlms = (1/68)·Σ‖π(v_j) − l_j‖₁` (crop pixels), by Levenberg–Marquardt
+//! ([`crate::levenberg`], the default) or Adam ([`fit_adam`]): decision 0701 measures the two.
+//! The loss (`Objective`) renders the visibility buffer on the CPU, interpolates the shaded
+//! vertex colours, and back-propagates through the decoder's VJPs ([`crate::decoder`]):
+//! colours → shading (albedo, light, normals) → normals → positions, and positions also
+//! through the barycentrics.
 //!
 //! Built so far: one pyramid level; the region is the rendered part of the model's narrow
 //! face mask (no skin likelihood, no background likelihood, no silhouette term and no
@@ -27,9 +29,21 @@ use crate::camera::CropCamera;
 use crate::decoder::{barycentric, interpolate, linear::Linear, normals, pose, project, shading};
 use crate::error::FitError;
 
+/// How the coarse fit minimises its loss (decision 0701 measures the two).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Optimiser {
+    /// Adam through the decoder's exact gradient, one step per iteration.
+    Adam,
+    /// Levenberg–Marquardt with a subsampled, reweighted Gauss–Newton curvature
+    /// ([`crate::levenberg`]).
+    #[default]
+    LevenbergMarquardt,
+}
+
 /// Weights, step sizes and caps of the photometric fit.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PhotometricSettings {
+    pub optimiser: Optimiser,
     pub lambda_ph: f64,
     pub lambda_lms: f64,
     pub lambda_id: f64,
@@ -54,13 +68,14 @@ pub struct PhotometricSettings {
 impl Default for PhotometricSettings {
     fn default() -> Self {
         PhotometricSettings {
+            optimiser: Optimiser::default(),
             lambda_ph: 1.0,
             lambda_lms: 0.3,
             lambda_id: 3e-4,
             lambda_exp: 2.5e-4,
             lambda_tex: 1e-4,
             sigma_ph: 0.043,
-            iterations: 80,
+            iterations: 45,
             time_budget: Duration::from_secs(10),
             raster_every: 2,
             lr_coefficients: 0.03,
@@ -95,9 +110,14 @@ impl Adam {
     }
     /// One step of size `lr` along `g`; `t` counts steps from 1.
     pub(crate) fn step(&mut self, x: &mut [f64], g: &[f64], lr: f64, t: i32) {
+        self.step_range(x, g, 0..x.len(), lr, t);
+    }
+
+    /// [`Self::step`] on the entries `range` only (a block with its own step size).
+    pub(crate) fn step_range(&mut self, x: &mut [f64], g: &[f64], range: std::ops::Range<usize>, lr: f64, t: i32) {
         let (b1, b2) = (0.9f64, 0.999f64);
         let (c1, c2) = (1.0 - b1.powi(t), 1.0 - b2.powi(t));
-        for i in 0..x.len() {
+        for i in range {
             self.m[i] = b1 * self.m[i] + (1.0 - b1) * g[i];
             self.v[i] = b2 * self.v[i] + (1.0 - b2) * g[i] * g[i];
             let mh = self.m[i] / c1;
@@ -244,8 +264,199 @@ impl<'a> Target<'a> {
     }
 }
 
+/// The coefficients the coarse fit moves, as one vector: identity and expression, albedo,
+/// light (25×3, basis-major), rotation (axis-angle), translation (mm).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Layout {
+    pub(crate) identity: usize,
+    pub(crate) shape: usize,
+    pub(crate) albedo: usize,
+}
+
+impl Layout {
+    pub(crate) fn of(model: &MorphableModel) -> Self {
+        let l = model.layout();
+        Layout { identity: l.identity, shape: l.identity + l.expression, albedo: l.albedo }
+    }
+    pub(crate) fn shape(&self) -> std::ops::Range<usize> {
+        0..self.shape
+    }
+    pub(crate) fn albedo(&self) -> std::ops::Range<usize> {
+        self.shape..self.shape + self.albedo
+    }
+    pub(crate) fn light(&self) -> std::ops::Range<usize> {
+        let a = self.albedo().end;
+        a..a + 3 * facerecon_model::coeffs::SH_COEFFS
+    }
+    pub(crate) fn rotation(&self) -> std::ops::Range<usize> {
+        let l = self.light().end;
+        l..l + 3
+    }
+    pub(crate) fn translation(&self) -> std::ops::Range<usize> {
+        let r = self.rotation().end;
+        r..r + 3
+    }
+    pub(crate) fn len(&self) -> usize {
+        self.translation().end
+    }
+
+    pub(crate) fn flatten(&self, c: &Coefficients) -> Vec<f64> {
+        let f = |v: &[f32]| v.iter().map(|&x| x as f64).collect::<Vec<_>>();
+        let mut x = f(&c.identity);
+        x.extend(f(&c.expression));
+        x.extend(f(&c.albedo));
+        x.extend(c.light.iter().flat_map(|l| l.map(|v| v as f64)));
+        x.extend(f(&c.rotation));
+        x.extend(f(&c.translation));
+        x
+    }
+
+    pub(crate) fn unflatten(&self, x: &[f64], like: &Coefficients) -> Coefficients {
+        let f = |r: std::ops::Range<usize>| x[r].iter().map(|&v| v as f32).collect::<Vec<_>>();
+        let mut c = like.clone();
+        c.identity = f(0..self.identity);
+        c.expression = f(self.identity..self.shape);
+        c.albedo = f(self.albedo());
+        let l = self.light().start;
+        c.light = std::array::from_fn(|k| std::array::from_fn(|ch| x[l + 3 * k + ch] as f32));
+        let (r, t) = (self.rotation().start, self.translation().start);
+        c.rotation = [x[r] as f32, x[r + 1] as f32, x[r + 2] as f32];
+        c.translation = [x[t] as f32, x[t + 1] as f32, x[t + 2] as f32];
+        c
+    }
+
+    /// Keeps the coefficients in their priors' ranges: expressions in [0, 1], Gaussian
+    /// coefficients within the model's bound.
+    pub(crate) fn project(&self, x: &mut [f64]) {
+        let bound = facerecon_model::morphable::GAUSSIAN_BOUND as f64;
+        for v in &mut x[self.identity..self.shape] {
+            *v = v.clamp(0.0, 1.0);
+        }
+        for r in [0..self.identity, self.albedo()] {
+            for v in &mut x[r] {
+                *v = v.clamp(-bound, bound);
+            }
+        }
+    }
+}
+
+/// The decoder's forward state at one coefficient vector.
+pub(crate) struct Forward {
+    /// Model-space shape, camera-space points, their normals, albedo and shaded colours.
+    pub(crate) shape: Vec<DVec3>,
+    pub(crate) points: Vec<DVec3>,
+    pub(crate) normals: Vec<DVec3>,
+    pub(crate) albedo: Vec<DVec3>,
+    pub(crate) colors: Vec<DVec3>,
+    pub(crate) rotation: DVec3,
+    pub(crate) light: shading::Light,
+}
+
+/// The coarse fit's loss (module docs) at one coefficient vector.
+pub(crate) struct Evaluation {
+    pub(crate) loss: f64,
+    /// Mean absolute colour difference per channel over the footprint.
+    pub(crate) l1: f64,
+    /// The exact gradient (when asked for), in [`Layout`]'s order.
+    pub(crate) gradient: Option<Vec<f64>>,
+    pub(crate) forward: Forward,
+}
+
+/// The coarse fit's objective: the crop, the weights and the model.
+pub(crate) struct Objective<'a> {
+    pub(crate) model: &'a MorphableModel,
+    pub(crate) target: Target<'a>,
+    pub(crate) settings: &'a PhotometricSettings,
+    pub(crate) layout: Layout,
+}
+
+impl<'a> Objective<'a> {
+    pub(crate) fn new(
+        model: &'a MorphableModel,
+        crop: &RgbImage,
+        landmarks: &'a [[f32; 2]],
+        landmark_vertices: &'a [u32],
+        settings: &'a PhotometricSettings,
+    ) -> Result<Self, FitError> {
+        Ok(Objective {
+            model,
+            target: Target::new(model, crop, landmarks, landmark_vertices)?,
+            settings,
+            layout: Layout::of(model),
+        })
+    }
+
+    pub(crate) fn forward(&self, x: &[f64]) -> Result<Forward, FitError> {
+        let l = &self.layout;
+        let q = DVec3::from_slice(&x[l.rotation()]);
+        let t = DVec3::from_slice(&x[l.translation()]);
+        let lx = &x[l.light()];
+        let light: shading::Light = std::array::from_fn(|k| [lx[3 * k], lx[3 * k + 1], lx[3 * k + 2]]);
+        let shape = Linear::Shape.forward_fast(self.model, &x[l.shape()]).map_err(FitError::Evaluate)?;
+        let points = pose::forward(&shape, q, t);
+        self.target.check_positions(&points)?;
+        let normals = normals::forward(&points, self.target.triangles);
+        let albedo = Linear::Albedo.forward_fast(self.model, &x[l.albedo()]).map_err(FitError::Evaluate)?;
+        let colors = shading::forward(&albedo, &normals, &light);
+        Ok(Forward { shape, points, normals, albedo, colors, rotation: q, light })
+    }
+
+    /// The loss at `x` over the footprint `fp` (exact barycentrics from `x`'s positions),
+    /// with its gradient when `gradient` is set. With `render`, `fp` is first replaced by
+    /// the footprint of `x`'s own surface.
+    pub(crate) fn evaluate(
+        &self,
+        x: &[f64],
+        fp: &mut Footprint,
+        render: bool,
+        gradient: bool,
+    ) -> Result<Evaluation, FitError> {
+        let (st, l) = (self.settings, &self.layout);
+        let f = self.forward(x)?;
+        if render {
+            *fp = self.target.footprint(&f.points)?;
+        }
+        let nv = f.points.len();
+        let mut g_colors = vec![DVec3::ZERO; nv];
+        let mut g_y = vec![DVec3::ZERO; nv];
+        let (mut loss, l1) =
+            self.target.photometric(fp, &f.points, &f.colors, st.lambda_ph / st.sigma_ph, &mut g_colors, &mut g_y);
+        loss += self.target.landmarks(&f.points, st.lambda_lms, &mut g_y);
+        let prior = |r: std::ops::Range<usize>, lam: f64| lam * x[r].iter().map(|v| v * v).sum::<f64>();
+        loss += prior(0..l.identity, st.lambda_id)
+            + prior(l.identity..l.shape, st.lambda_exp)
+            + prior(l.albedo(), st.lambda_tex);
+        let gradient = gradient.then(|| {
+            let gsh = shading::vjp(&f.albedo, &f.normals, &f.light, &g_colors);
+            for (a, b) in g_y.iter_mut().zip(normals::vjp(&f.points, self.target.triangles, &gsh.normals)) {
+                *a += b;
+            }
+            let gp = pose::vjp(&f.shape, f.rotation, &g_y);
+            let mut g = Linear::Shape.vjp_fast(self.model, &gp.points);
+            for (k, gk) in g.iter_mut().enumerate() {
+                let lam = if k < l.identity { st.lambda_id } else { st.lambda_exp };
+                *gk += 2.0 * lam * x[k];
+            }
+            let wa = &x[l.albedo()];
+            g.extend(
+                Linear::Albedo
+                    .vjp_fast(self.model, &gsh.albedo)
+                    .iter()
+                    .zip(wa)
+                    .map(|(gk, w)| gk + 2.0 * st.lambda_tex * w),
+            );
+            g.extend(gsh.light.iter().flat_map(|c| *c));
+            g.extend(gp.rotation.to_array());
+            g.extend(gp.translation.to_array());
+            g
+        });
+        Ok(Evaluation { loss, l1, gradient, forward: f })
+    }
+}
+
 /// Fits `start` (e.g. the landmark fit) to `crop` (the face's 224² crop) and its 68
-/// landmarks in crop pixels, whose model vertices are `landmark_vertices`.
+/// landmarks in crop pixels, whose model vertices are `landmark_vertices`, with the
+/// settings' optimiser.
 pub fn fit(
     model: &MorphableModel,
     crop: &RgbImage,
@@ -254,97 +465,62 @@ pub fn fit(
     start: &Coefficients,
     settings: &PhotometricSettings,
 ) -> Result<PhotometricFit, FitError> {
-    let layout = model.layout();
-    if start.layout() != layout {
+    match settings.optimiser {
+        Optimiser::Adam => fit_adam(model, crop, landmarks, landmark_vertices, start, settings),
+        Optimiser::LevenbergMarquardt => {
+            crate::levenberg::fit(model, crop, landmarks, landmark_vertices, start, settings)
+        }
+    }
+}
+
+/// [`fit`] by Adam.
+pub fn fit_adam(
+    model: &MorphableModel,
+    crop: &RgbImage,
+    landmarks: &[[f32; 2]],
+    landmark_vertices: &[u32],
+    start: &Coefficients,
+    settings: &PhotometricSettings,
+) -> Result<PhotometricFit, FitError> {
+    if start.layout() != model.layout() {
         return Err(FitError::Model("start coefficients do not match the model".into()));
     }
-    let target = Target::new(model, crop, landmarks, landmark_vertices)?;
-    let nv = model.extent_vertices(Extent::Face);
-    let tris = target.triangles;
-
-    let mut ws: Vec<f64> = start.identity.iter().chain(&start.expression).map(|&x| x as f64).collect();
-    let mut wa: Vec<f64> = start.albedo.iter().map(|&x| x as f64).collect();
-    let mut light: Vec<f64> = start.light.iter().flat_map(|c| c.map(|x| x as f64)).collect();
-    let mut pose_v: Vec<f64> = start.rotation.iter().chain(&start.translation).map(|&x| x as f64).collect();
-    let (mut a_ws, mut a_wa, mut a_l, mut a_r, mut a_t) =
-        (Adam::new(ws.len()), Adam::new(wa.len()), Adam::new(light.len()), Adam::new(3), Adam::new(3));
+    let objective = Objective::new(model, crop, landmarks, landmark_vertices, settings)?;
+    let l = objective.layout;
+    let mut x = l.flatten(start);
+    let mut adam = Adam::new(x.len());
+    let blocks = [
+        (l.shape(), settings.lr_coefficients),
+        (l.albedo(), settings.lr_coefficients),
+        (l.light(), settings.lr_light),
+        (l.rotation(), settings.lr_rotation),
+        (l.translation(), settings.lr_translation),
+    ];
     let started = Instant::now();
     let mut losses = Vec::new();
     let mut last_l1 = f64::NAN;
     let mut fp = Vec::new();
-    let ni = layout.identity;
     for it in 0..settings.iterations {
         if started.elapsed() > settings.time_budget {
             break;
         }
-        let q = DVec3::new(pose_v[0], pose_v[1], pose_v[2]);
-        let t = DVec3::new(pose_v[3], pose_v[4], pose_v[5]);
-        let lt: shading::Light = std::array::from_fn(|k| [light[3 * k], light[3 * k + 1], light[3 * k + 2]]);
-        // Forward.
-        let s = Linear::Shape.forward_fast(model, &ws).map_err(FitError::Evaluate)?;
-        let y = pose::forward(&s, q, t);
-        target.check_positions(&y)?;
-        let nn = normals::forward(&y, tris);
-        let albedo = Linear::Albedo.forward_fast(model, &wa).map_err(FitError::Evaluate)?;
-        let colors = shading::forward(&albedo, &nn, &lt);
-        if it % settings.raster_every.max(1) == 0 {
-            fp = target.footprint(&y)?;
-        }
-        let mut g_colors = vec![DVec3::ZERO; nv];
-        let mut g_y = vec![DVec3::ZERO; nv];
-        let (mut loss, l1) =
-            target.photometric(&fp, &y, &colors, settings.lambda_ph / settings.sigma_ph, &mut g_colors, &mut g_y);
-        last_l1 = l1;
-        loss += target.landmarks(&y, settings.lambda_lms, &mut g_y);
-        // Priors.
-        let (id, ex) = ws.split_at(ni);
-        loss += settings.lambda_id * id.iter().map(|x| x * x).sum::<f64>()
-            + settings.lambda_exp * ex.iter().map(|x| x * x).sum::<f64>()
-            + settings.lambda_tex * wa.iter().map(|x| x * x).sum::<f64>();
-        losses.push(loss);
+        let e = objective.evaluate(&x, &mut fp, it % settings.raster_every.max(1) == 0, true)?;
+        last_l1 = e.l1;
+        losses.push(e.loss);
         // Stopping rule: less than 0.1 % gained over the last 20 iterations.
-        if losses.len() > 20 && losses[losses.len() - 21] - loss < 1e-3 * losses[losses.len() - 21].abs() {
+        if losses.len() > 20 && losses[losses.len() - 21] - e.loss < 1e-3 * losses[losses.len() - 21].abs() {
             break;
         }
-        // Backward.
-        let gsh = shading::vjp(&albedo, &nn, &lt, &g_colors);
-        let gn = normals::vjp(&y, tris, &gsh.normals);
-        for (a, b) in g_y.iter_mut().zip(&gn) {
-            *a += *b;
+        let g = e.gradient.unwrap_or_default();
+        for (range, lr) in &blocks {
+            adam.step_range(&mut x, &g, range.clone(), *lr, it as i32 + 1);
         }
-        let gp = pose::vjp(&s, q, &g_y);
-        let mut g_ws = Linear::Shape.vjp_fast(model, &gp.points);
-        for (k, g) in g_ws.iter_mut().enumerate() {
-            let lam = if k < ni { settings.lambda_id } else { settings.lambda_exp };
-            *g += 2.0 * lam * ws[k];
-        }
-        let mut g_wa = Linear::Albedo.vjp_fast(model, &gsh.albedo);
-        for (g, x) in g_wa.iter_mut().zip(&wa) {
-            *g += 2.0 * settings.lambda_tex * x;
-        }
-        let g_l: Vec<f64> = gsh.light.iter().flat_map(|c| *c).collect();
-        let step = it as i32 + 1;
-        a_ws.step(&mut ws, &g_ws, settings.lr_coefficients, step);
-        a_wa.step(&mut wa, &g_wa, settings.lr_coefficients, step);
-        a_l.step(&mut light, &g_l, settings.lr_light, step);
-        a_r.step(&mut pose_v[..3], &gp.rotation.to_array(), settings.lr_rotation, step);
-        a_t.step(&mut pose_v[3..], &gp.translation.to_array(), settings.lr_translation, step);
-        for x in &mut ws[ni..] {
-            *x = x.clamp(0.0, 1.0);
-        }
-        for x in ws[..ni].iter_mut().chain(wa.iter_mut()) {
-            *x = x.clamp(
-                -facerecon_model::morphable::GAUSSIAN_BOUND as f64,
-                facerecon_model::morphable::GAUSSIAN_BOUND as f64,
-            );
-        }
+        l.project(&mut x);
     }
-    let mut c = start.clone();
-    c.identity = ws[..ni].iter().map(|&x| x as f32).collect();
-    c.expression = ws[ni..].iter().map(|&x| x as f32).collect();
-    c.albedo = wa.iter().map(|&x| x as f32).collect();
-    c.light = std::array::from_fn(|k| [light[3 * k] as f32, light[3 * k + 1] as f32, light[3 * k + 2] as f32]);
-    c.rotation = [pose_v[0] as f32, pose_v[1] as f32, pose_v[2] as f32];
-    c.translation = [pose_v[3] as f32, pose_v[4] as f32, pose_v[5] as f32];
-    Ok(PhotometricFit { coefficients: c, iterations: losses.len(), losses, photometric_l1: last_l1 })
+    Ok(PhotometricFit {
+        coefficients: l.unflatten(&x, start),
+        iterations: losses.len(),
+        losses,
+        photometric_l1: last_l1,
+    })
 }
