@@ -252,8 +252,27 @@ fn faces_cut_by_the_border_and_tiny_faces_are_handled() {
     let b = FaceBox::of_points(truth.iter().copied()).unwrap();
     let shift = b.x0 + 0.5 * b.width();
     let cut: Vec<[f32; 2]> = truth.iter().map(|q| [q[0] - shift, q[1]]).collect();
-    let r = p.reconstruct(&bytes, &Options { faces: FaceSource::Landmarks(vec![cut]), ..Default::default() }).unwrap();
+    let r = p
+        .reconstruct(&bytes, &Options { faces: FaceSource::Landmarks(vec![cut.clone()]), ..Default::default() })
+        .unwrap();
     assert!(r.faces[0].fit.is_ok());
+    // The same at the full level, and its texture (half the surface projects outside the
+    // photo: those texels take the reconstruction's colour).
+    let full = Options { faces: FaceSource::Landmarks(vec![cut.clone()]), refine: Refine::Full, ..Default::default() };
+    let r = p.reconstruct(&bytes, &full).unwrap();
+    assert!(r.faces[0].fit.as_ref().is_ok_and(|f| f.displacement.is_some()), "{:?}", r.faces[0].fit.as_ref().err());
+    let t = texture::face_texture(p.model(), &r.image, &r.faces[0], 128).unwrap().unwrap();
+    assert!(t.photo_share > 0.05 && t.photo_share < 0.6, "{}", t.photo_share);
+    // An all-black photo with the caller's landmarks: a result (a black face) or a clear
+    // error, at every level.
+    let black = png(&image::RgbImage::new(640, 480));
+    for refine in [Refine::Landmarks, Refine::Coarse, Refine::Full] {
+        let o = Options { faces: FaceSource::Landmarks(vec![cut.clone()]), refine, ..Default::default() };
+        let r = p.reconstruct(&black, &o).unwrap();
+        if let Err(e) = &r.faces[0].fit {
+            assert!(!e.to_string().is_empty());
+        }
+    }
     // A face 20 px across: reported, not fitted.
     let c = b.center();
     let tiny: Vec<[f32; 2]> = truth
