@@ -9,7 +9,7 @@
 //!
 //!     cargo run --release -p facerecon-eval --example synth_geometry -- [--per-bucket N] [--seed S] \
 //!         [--buckets 0,1,2,3] [--sigma S] [--lambda-id L] [--lambda-exp L] [--coarse [--iterations N]] \
-//!         [--full [--smooth λ] [--lr mm]]
+//!         [--full [--smooth λ] [--lr mm]] [--optimiser adam|lm] [--ph-lambda-id λ] [--ph-lambda-exp λ]
 //!
 //! `--coarse` adds the photometric fit started from the exact landmarks' landmark fit;
 //! `--full` the displacement map on it too (the coarse figure then comes from the same run).
@@ -95,6 +95,7 @@ fn main() {
     let mut full = false;
     let mut iterations: Option<usize> = None;
     let mut displacement = facerecon_fit::displacement::DisplacementSettings::default();
+    let mut photometric = facerecon_fit::photometric::PhotometricSettings::default();
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         if a == "--coarse" || a == "--full" {
@@ -110,6 +111,19 @@ fn main() {
             "--lambda-id" => settings.identity_weight = v.parse().expect("number"),
             "--lambda-exp" => settings.expression_weight = v.parse().expect("number"),
             "--iterations" => iterations = Some(v.parse().expect("number")),
+            "--optimiser" => {
+                photometric.optimiser = match v.as_str() {
+                    "adam" => facerecon_fit::photometric::Optimiser::Adam,
+                    "lm" => facerecon_fit::photometric::Optimiser::LevenbergMarquardt,
+                    _ => panic!("--optimiser adam|lm"),
+                };
+                if v == "adam" {
+                    // Adam's own cap (decision 0703).
+                    photometric.iterations = 80;
+                }
+            }
+            "--ph-lambda-id" => photometric.lambda_id = v.parse().expect("number"),
+            "--ph-lambda-exp" => photometric.lambda_exp = v.parse().expect("number"),
             "--smooth" => displacement.lambda_smooth = v.parse().expect("number"),
             "--lr" => displacement.learning_rate = v.parse().expect("number"),
             "--buckets" => buckets = v.split(',').map(|b| b.parse().expect("bucket 0-3")).collect(),
@@ -120,6 +134,7 @@ fn main() {
     let front = FrontEnd::load_standard(facerecon_vision::landmarks::DEFAULT_MODEL_PATH.as_ref()).expect("front end");
     let mut pipeline = Pipeline::new(model.clone(), front).expect("pipeline");
     pipeline.set_fit_settings(settings);
+    pipeline.photometric = photometric;
     if let Some(n) = iterations {
         pipeline.photometric.iterations = n;
     }
