@@ -93,28 +93,7 @@ fn quality(
     crop: &image::RgbImage,
     c: &facerecon_model::Coefficients,
 ) -> Option<f64> {
-    let mut lit = facerecon_model::lit::LitFace::default();
-    lit.update(model, c).ok()?;
-    let tris = model.extent_triangles(facerecon_model::Extent::Face);
-    let frame = facerecon_raster::cpu::render(&facerecon_raster::RenderJob {
-        positions: &lit.positions,
-        triangles: tris,
-        colors: &lit.colors,
-        normals: &lit.normals,
-        camera: facerecon_raster::Camera::default(),
-        width: 224,
-        height: 224,
-    })
-    .ok()?;
-    let region = model.mask(facerecon_model::Mask::NarrowFace);
-    let mask: Vec<bool> = (0..frame.visibility.triangle.len())
-        .map(|i| {
-            frame.visibility.covered(i)
-                && tris
-                    .get(frame.visibility.triangle[i] as usize)
-                    .is_some_and(|t| t.iter().all(|&v| region.get(v as usize).is_some_and(|m| *m != 0)))
-        })
-        .collect();
+    let (frame, mask) = facerecon_recon::outputs::render_coefficients(model, c, None).ok()?;
     let a: Vec<[f32; 3]> = crop.pixels().map(|p| p.0.map(|c| c as f32 / 255.0)).collect();
     let b: Vec<[f32; 3]> = frame.color.iter().map(|c| [c[0], c[1], c[2]].map(|x| x as f32 / 255.0)).collect();
     psnr(&Rgb { width: 224, height: 224, pixels: &a }, &Rgb { width: 224, height: 224, pixels: &b }, &mask)

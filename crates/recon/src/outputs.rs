@@ -247,7 +247,16 @@ pub fn render_reconstruction(
     model: &MorphableModel,
     fit: &crate::FaceFit,
 ) -> Result<(facerecon_raster::Frame, Vec<bool>), RenderError> {
-    let lit = fit_lit_face(model, fit).map_err(|e| RenderError::InvalidArgument(e.to_string()))?;
+    render_coefficients(model, &fit.coefficients, fit.displacement.as_ref().map(|d| &d.map))
+}
+
+/// [`render_reconstruction`] of coefficients (and a displacement map), without a fit.
+pub fn render_coefficients(
+    model: &MorphableModel,
+    c: &Coefficients,
+    displacement: Option<&DisplacementMap>,
+) -> Result<(facerecon_raster::Frame, Vec<bool>), RenderError> {
+    let lit = lit_face(model, c, displacement).map_err(|e| RenderError::InvalidArgument(e.to_string()))?;
     let tris = model.extent_triangles(Extent::Face);
     let frame = render_face(model, &lit, &lit.colors, Camera::default(), CROP_SIZE)?;
     let region = model.mask(facerecon_model::Mask::NarrowFace);
