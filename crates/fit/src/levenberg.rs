@@ -71,7 +71,7 @@ pub fn fit(
             a[(i, i)] += mu * hm[(i, i)].max(1e-9);
         }
         let Some(chol) = a.cholesky() else {
-            mu *= 10.0;
+            mu = (mu * 10.0).min(1e8);
             losses.push(current.loss);
             continue;
         };
