@@ -43,12 +43,8 @@ pub fn fit(
     start: &Coefficients,
     settings: &PhotometricSettings,
 ) -> Result<PhotometricFit, FitError> {
-    if start.layout() != model.layout() {
-        return Err(FitError::Model("start coefficients do not match the model".into()));
-    }
-    let objective = Objective::new(model, crop, landmarks, landmark_vertices, settings)?;
+    let (objective, mut x) = Objective::start(model, crop, landmarks, landmark_vertices, settings, start)?;
     let l = objective.layout;
-    let mut x = l.flatten(start);
     let started = Instant::now();
     let mut losses = Vec::new();
     let mut fp = Vec::new();

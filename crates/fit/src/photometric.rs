@@ -373,7 +373,24 @@ pub(crate) struct Objective<'a> {
 }
 
 impl<'a> Objective<'a> {
-    pub(crate) fn new(
+    /// The objective of a fit and its starting vector (`start` checked against the model).
+    pub(crate) fn start(
+        model: &'a MorphableModel,
+        crop: &RgbImage,
+        landmarks: &'a [[f32; 2]],
+        landmark_vertices: &'a [u32],
+        settings: &'a PhotometricSettings,
+        start: &Coefficients,
+    ) -> Result<(Self, Vec<f64>), FitError> {
+        if start.layout() != model.layout() {
+            return Err(FitError::Model("start coefficients do not match the model".into()));
+        }
+        let objective = Self::new(model, crop, landmarks, landmark_vertices, settings)?;
+        let x = objective.layout.flatten(start);
+        Ok((objective, x))
+    }
+
+    fn new(
         model: &'a MorphableModel,
         crop: &RgbImage,
         landmarks: &'a [[f32; 2]],
@@ -484,12 +501,8 @@ pub fn fit_adam(
     start: &Coefficients,
     settings: &PhotometricSettings,
 ) -> Result<PhotometricFit, FitError> {
-    if start.layout() != model.layout() {
-        return Err(FitError::Model("start coefficients do not match the model".into()));
-    }
-    let objective = Objective::new(model, crop, landmarks, landmark_vertices, settings)?;
+    let (objective, mut x) = Objective::start(model, crop, landmarks, landmark_vertices, settings, start)?;
     let l = objective.layout;
-    let mut x = l.flatten(start);
     let mut adam = Adam::new(x.len());
     let blocks = [
         (l.shape(), settings.lr_coefficients),
