@@ -56,7 +56,7 @@ pub struct Fit {
     pub photometric: Option<PhotometricSummary>,
     /// What the displacement stage did (at [`Refine::Full`]).
     pub displacement: Option<DisplacementSummary>,
-    /// The displacement map as a 16-bit PNG (`facerecon_recon::outputs::displacement_png`),
+    /// The displacement map as a 16-bit PNG (`facerecon_model::displacement::to_png`),
     /// when asked for.
     pub displacement_png: Option<Vec<u8>>,
     /// The face's texture in the model's UV space (PNG; `facerecon_recon::texture`), when

@@ -212,7 +212,7 @@ pub fn response(
                         ..Default::default()
                     };
                     if wanted.displacement_map {
-                        let png = outputs::displacement_png(&d.map)
+                        let png = facerecon_model::displacement::to_png(&d.map)
                             .map_err(|e| internal("encoding the displacement map", e))?;
                         (m.png, m.scale_mm, m.offset_mm) = (png.bytes, png.scale_mm, png.offset_mm);
                     }

@@ -117,7 +117,7 @@ async fn the_full_level_sends_its_displacement_map() {
     assert_eq!(fit.refine, facerecon_recon::Refine::Full);
     let summary = fit.displacement.expect("displacement summary");
     assert!(summary.color_l1 < summary.color_l1_start, "{summary:?}");
-    let map = facerecon_recon::outputs::read_displacement_png(fit.displacement_png.as_ref().unwrap()).unwrap();
+    let map = facerecon_model::displacement::from_png(fit.displacement_png.as_ref().unwrap()).unwrap();
 
     let p = facerecon_tests::pipeline();
     let local_options = facerecon_recon::Options {

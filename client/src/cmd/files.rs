@@ -4,7 +4,7 @@
 //! `.obj` + `.mtl`, `<stem>-face<K>-texture.png` (the photo projected into UV space, see
 //! `facerecon_recon::texture`; the `.glb` embeds it, the `.mtl` names it), and at the full
 //! level `<stem>-face<K>-displacement.png` (16-bit, see
-//! `facerecon_recon::outputs::displacement_png`); per photo `<stem>-overlay.png` and
+//! `facerecon_model::displacement::to_png`); per photo `<stem>-overlay.png` and
 //! `<stem>-sidebyside.png`.
 
 use std::path::{Path, PathBuf};

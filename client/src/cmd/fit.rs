@@ -157,7 +157,8 @@ fn one(pipeline: &Pipeline, args: &FitArgs, path: &Path) -> anyhow::Result<()> {
                     (Some(outputs::face_mesh(model, fit)?), t.map(|t| files::png(&t.image)).transpose()?)
                 }
             };
-            let displacement = fit.displacement.as_ref().map(|d| outputs::displacement_png(&d.map)).transpose()?;
+            let displacement =
+                fit.displacement.as_ref().map(|d| facerecon_model::displacement::to_png(&d.map)).transpose()?;
             let face_files = files::FaceFiles {
                 record: r,
                 mesh: mesh.as_ref(),

@@ -150,14 +150,14 @@ fn the_full_fit_adds_a_displacement_map_that_lowers_the_colour_error() {
 
     // The 16-bit PNG, read back by the image crate (an independent decoder) with the scale
     // and offset the encoder reports, and by our own reader (which takes them from the file).
-    let png = outputs::displacement_png(&d.map).unwrap();
+    let png = facerecon_model::displacement::to_png(&d.map).unwrap();
     let decoded = image::load_from_memory(&png.bytes).unwrap().into_luma16();
     assert_eq!(decoded.dimensions(), (256, 256));
     let step = png.scale_mm;
     for (v, m) in decoded.pixels().zip(d.map.values()) {
         assert!((png.offset_mm + png.scale_mm * v[0] as f32 - m).abs() <= step, "{v:?} vs {m}");
     }
-    let back = outputs::read_displacement_png(&png.bytes).unwrap();
+    let back = facerecon_model::displacement::from_png(&png.bytes).unwrap();
     assert!(back.values().iter().zip(d.map.values()).all(|(a, b)| (a - b).abs() <= step));
 
     // The record says what the stage did.
