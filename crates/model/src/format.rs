@@ -8,7 +8,8 @@
 //!
 //! Tensors (little-endian): `mean_shape` F32 [N,3]; `identity_basis` F32 [K_id,N,3];
 //! `expression_basis` F32 [K_exp,N,3]; `mean_albedo` F32 [N,3]; `albedo_basis`
-//! F32 [K_tex,N_face,3]; `triangles` U32 [T,3]; `uvs` F32 [N_uv,2]; `uv_triangles` U32 [T,3];
+//! F32 [K_tex,N_face,3] (the three bases may be F16 instead: the compact copy,
+//! [`MorphableModel::to_compact_bytes`], half the size, widened to F32 on load); `triangles` U32 [T,3]; `uvs` F32 [N_uv,2]; `uv_triangles` U32 [T,3];
 //! `landmarks` U32 [68] (or [0]: not annotated); `symmetry` U32 [N]; `region_ids` U8 [N]; `mask.<name>` U8 [N]
 //! for face, narrow_face, eyes, mouth, nose_tip.
 //!
@@ -57,7 +58,21 @@ impl MorphableModel {
 
     /// The file's bytes.
     pub fn to_bytes(&self) -> Result<Vec<u8>, ModelError> {
-        encode(&self.meta, &self.parts)
+        encode(&self.meta, &self.parts, Dtype::F32)
+    }
+
+    /// The file's bytes with the identity, expression and albedo bases stored as F16: about
+    /// half the size, for carrying the model where bandwidth is scarce (a training machine).
+    /// Means, UVs and indices stay exact; the bases lose precision below 0.05 % of each value.
+    pub fn to_compact_bytes(&self) -> Result<Vec<u8>, ModelError> {
+        let p = &self.parts;
+        let too_big = [&p.identity_basis, &p.expression_basis, &p.albedo_basis]
+            .iter()
+            .any(|b| b.iter().any(|v| v.abs() > half::f16::MAX.to_f32()));
+        if too_big {
+            return Err(ModelError::Header("a basis value is beyond F16's range; keep the F32 file".into()));
+        }
+        encode(&self.meta, &self.parts, Dtype::F16)
     }
 
     /// Writes the model file (to a temporary name first, then renamed into place).
@@ -97,6 +112,9 @@ impl View for &Owned {
 fn f32_tensor(v: &[f32], shape: Vec<usize>) -> Owned {
     Owned { dtype: Dtype::F32, shape, data: v.iter().flat_map(|x| x.to_le_bytes()).collect() }
 }
+fn f16_tensor(v: &[f32], shape: Vec<usize>) -> Owned {
+    Owned { dtype: Dtype::F16, shape, data: v.iter().flat_map(|x| half::f16::from_f32(*x).to_le_bytes()).collect() }
+}
 fn u32_tensor(v: &[u32], shape: Vec<usize>) -> Owned {
     Owned { dtype: Dtype::U32, shape, data: v.iter().flat_map(|x| x.to_le_bytes()).collect() }
 }
@@ -104,17 +122,19 @@ fn u8_tensor(v: &[u8]) -> Owned {
     Owned { dtype: Dtype::U8, shape: vec![v.len()], data: v.to_vec() }
 }
 
-pub(crate) fn encode(meta: &ModelMeta, p: &ModelParts) -> Result<Vec<u8>, ModelError> {
+/// `bases`: the dtype of the three bases (F32, or F16 for the compact copy).
+pub(crate) fn encode(meta: &ModelMeta, p: &ModelParts, bases: Dtype) -> Result<Vec<u8>, ModelError> {
     validate(meta, p)?;
+    let basis = |v: &[f32], shape| if bases == Dtype::F16 { f16_tensor(v, shape) } else { f32_tensor(v, shape) };
     let n = meta.vertex_count;
     let nf = meta.face_vertex_count;
     let t = p.triangles.len();
     let mut tensors: Vec<(String, Owned)> = vec![
         ("mean_shape".into(), f32_tensor(&p.mean_shape, vec![n, 3])),
-        ("identity_basis".into(), f32_tensor(&p.identity_basis, vec![meta.identity.count, n, 3])),
-        ("expression_basis".into(), f32_tensor(&p.expression_basis, vec![meta.expression.count, n, 3])),
+        ("identity_basis".into(), basis(&p.identity_basis, vec![meta.identity.count, n, 3])),
+        ("expression_basis".into(), basis(&p.expression_basis, vec![meta.expression.count, n, 3])),
         ("mean_albedo".into(), f32_tensor(&p.mean_albedo, vec![n, 3])),
-        ("albedo_basis".into(), f32_tensor(&p.albedo_basis, vec![meta.albedo.count, nf, 3])),
+        ("albedo_basis".into(), basis(&p.albedo_basis, vec![meta.albedo.count, nf, 3])),
         ("triangles".into(), u32_tensor(p.triangles.as_flattened(), vec![t, 3])),
         ("uvs".into(), f32_tensor(p.uvs.as_flattened(), vec![p.uvs.len(), 2])),
         ("uv_triangles".into(), u32_tensor(p.uv_triangles.as_flattened(), vec![t, 3])),
@@ -214,6 +234,15 @@ impl<'a> Reader<'a> {
         let data = self.raw(name, Dtype::F32, shape)?;
         Ok(data.as_chunks::<4>().0.iter().map(|b| f32::from_le_bytes(*b)).collect())
     }
+    /// A basis: F32, or F16 widened (the compact copy).
+    fn basis(&self, name: &str, shape: &[usize]) -> Result<Vec<f32>, ModelError> {
+        let is_f16 = self.st.tensor(name).is_ok_and(|v| v.dtype() == Dtype::F16);
+        if !is_f16 {
+            return self.f32s(name, shape);
+        }
+        let data = self.raw(name, Dtype::F16, shape)?;
+        Ok(data.as_chunks::<2>().0.iter().map(|b| half::f16::from_le_bytes(*b).to_f32()).collect())
+    }
     fn u32s(&self, name: &str, shape: &[usize]) -> Result<Vec<u32>, ModelError> {
         let data = self.raw(name, Dtype::U32, shape)?;
         Ok(data.as_chunks::<4>().0.iter().map(|b| u32::from_le_bytes(*b)).collect())
@@ -255,10 +284,10 @@ pub(crate) fn decode(bytes: &[u8]) -> Result<MorphableModel, ModelError> {
     }
     let parts = ModelParts {
         mean_shape: r.f32s("mean_shape", &[n, 3])?,
-        identity_basis: r.f32s("identity_basis", &[meta.identity.count, n, 3])?,
-        expression_basis: r.f32s("expression_basis", &[meta.expression.count, n, 3])?,
+        identity_basis: r.basis("identity_basis", &[meta.identity.count, n, 3])?,
+        expression_basis: r.basis("expression_basis", &[meta.expression.count, n, 3])?,
         mean_albedo: r.f32s("mean_albedo", &[n, 3])?,
-        albedo_basis: r.f32s("albedo_basis", &[meta.albedo.count, nf, 3])?,
+        albedo_basis: r.basis("albedo_basis", &[meta.albedo.count, nf, 3])?,
         triangles: tri(r.u32s("triangles", &[t, 3])?),
         uvs: r.f32s("uvs", &[n_uv, 2])?.as_chunks::<2>().0.to_vec(),
         uv_triangles: tri(r.u32s("uv_triangles", &[t, 3])?),

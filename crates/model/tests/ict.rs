@@ -337,3 +337,28 @@ fn reference_sums(m: &MorphableModel, id: &[f32], ex: &[f32], tex: &[f32], v: us
     }
     (s, a)
 }
+
+#[test]
+fn compact_copy_halves_the_file_and_rounds_only_the_bases() {
+    let m = ict::load_default().unwrap();
+    let full = m.to_bytes().unwrap();
+    let compact = m.to_compact_bytes().unwrap();
+    assert!(compact.len() * 10 < full.len() * 6, "{} vs {} bytes", compact.len(), full.len());
+    let back = MorphableModel::from_bytes(&compact).unwrap();
+    let (a, b) = (m.parts(), back.parts());
+    assert_eq!(a.mean_shape, b.mean_shape);
+    assert_eq!(a.mean_albedo, b.mean_albedo);
+    assert_eq!(a.triangles, b.triangles);
+    assert_eq!(a.landmarks, b.landmarks);
+    // F16 rounds to nearest: relative error ≤ 2⁻¹¹ for normal values, 2⁻²⁵ absolute below.
+    for (x, y) in [(&a.identity_basis, &b.identity_basis), (&a.expression_basis, &b.expression_basis)]
+        .into_iter()
+        .chain([(&a.albedo_basis, &b.albedo_basis)])
+    {
+        assert_eq!(x.len(), y.len());
+        for (u, v) in x.iter().zip(y) {
+            assert!((u - v).abs() <= u.abs() * 2f32.powi(-11) + 2f32.powi(-25), "{u} → {v}");
+        }
+    }
+    assert!(back != *m, "the bases did change");
+}
