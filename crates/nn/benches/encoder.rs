@@ -37,7 +37,7 @@ fn main() {
     let runs: usize = std::env::args().skip(1).find_map(|a| a.parse().ok()).unwrap_or(21);
     let model = facerecon_model::ict::load_default().expect("default model");
     let config = NetworkConfig::full(&model).unwrap();
-    let device = Device::default();
+    let device = Device::flex();
     let net = EncoderNet::new(&config, &device);
     let onnx = facerecon_nn::onnx::export(&net, &config).unwrap();
     println!("encoder: {} outputs, ONNX graph {:.1} MB", config.output_size(), onnx.len() as f64 / 1e6);

@@ -191,7 +191,7 @@ impl OrtEncoder {
 
     /// Exports a weights file and loads it: the weights file stays the one artefact.
     pub fn load(path: &Path, runtime: &OnnxRuntimeConfig) -> Result<Self, NnError> {
-        let device = Device::default();
+        let device = Device::flex();
         let (config, net) = crate::weights::load(path, &device)?;
         let onnx = crate::onnx::export(&net, &config)?;
         Self::from_onnx(config, &onnx, runtime)

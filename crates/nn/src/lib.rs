@@ -1,6 +1,7 @@
 //! The learned encoder (DESIGN §7): a resolution-aware ResNet-18 that regresses a face's
 //! coefficients from its 224-px crop in one pass.
 //!
+//! * [`compute`] — where the burn network runs ([`Compute`]: CPU, or the GPU with feature `gpu`).
 //! * [`config`] — the network's shape and output map ([`NetworkConfig`]), the one
 //!   description every path reads; the coefficient row ⇄ [`facerecon_model::Coefficients`].
 //! * [`network`] — the network in burn ([`EncoderNet`]), for training and GPU inference.
@@ -9,12 +10,14 @@
 //! * [`encoder`] — the [`Encoder`] trait, [`CropBatch`], and the two inference paths:
 //!   [`BurnEncoder`] and [`OrtEncoder`] (ONNX Runtime, the CPU path).
 
+pub mod compute;
 pub mod config;
 pub mod encoder;
 pub mod network;
 pub mod onnx;
 pub mod weights;
 
+pub use compute::Compute;
 pub use config::{Head, NetworkConfig};
 pub use encoder::{BurnEncoder, CropBatch, Encoder, OrtEncoder};
 pub use network::{EncoderNet, EncoderOutput};
