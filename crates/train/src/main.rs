@@ -11,11 +11,10 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::Context;
-use burn::tensor::Device;
 use clap::{Parser, ValueEnum};
 use facerecon_model::MorphableModel;
-use facerecon_nn::NetworkConfig;
-use facerecon_train::{TrainConfig, train};
+use facerecon_nn::{Compute, NetworkConfig};
+use facerecon_train::{StopEarly, TrainConfig, train_until};
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
 enum Preset {
@@ -47,6 +46,17 @@ struct Args {
     /// Face model file (default: ICT-FaceKit, built from the shared folder).
     #[arg(long)]
     model: Option<PathBuf>,
+    /// Where the network trains: `cpu` (burn Flex), or `gpu` (burn Vulkan; builds with
+    /// `--features gpu`).
+    #[arg(long, default_value = "cpu")]
+    device: Compute,
+    /// Stop after this many seconds with a checkpoint (a lent machine's time); running the
+    /// same command again resumes.
+    #[arg(long)]
+    time_limit: Option<u64>,
+    /// Log (and print) every this many steps (default: the preset's).
+    #[arg(long)]
+    log_every: Option<u64>,
     /// Print the summary as JSON on stdout.
     #[arg(long)]
     json: bool,
@@ -76,6 +86,9 @@ fn run(args: Args) -> anyhow::Result<()> {
     if let Some(b) = args.batch {
         config.batch_size = b;
     }
+    if let Some(n) = args.log_every {
+        config.log_every = n;
+    }
     if let Some(s) = args.seed {
         config.seed = s;
     }
@@ -83,7 +96,7 @@ fn run(args: Args) -> anyhow::Result<()> {
         config.lr_peak = lr;
         config.lr_start = config.lr_start.min(lr);
     }
-    let device = Device::default();
+    let device = args.device.device()?;
     eprintln!(
         "facerecon-train: {:?} network, {} steps of {} faces, on {device:?}, into {}",
         args.preset,
@@ -92,10 +105,20 @@ fn run(args: Args) -> anyhow::Result<()> {
         args.out.display()
     );
     let steps = config.steps;
-    let summary = train(&model, &config, &args.out, &device, |e| {
+    let stop = StopEarly { after: args.time_limit.map(std::time::Duration::from_secs), ..StopEarly::default() };
+    let summary = train_until(&model, &config, &args.out, &device, stop, |e| {
         eprintln!(
-            "step {:>6}/{steps}  loss {:.4} (coef {:.4} shape {:.4} lmk {:.4} res {:.4})  landmarks {:.2} px  lr {:.1e}  {:.2} s",
-            e.step, e.total, e.coef, e.shape, e.landmarks, e.resolution, e.landmark_rms_px, e.lr, e.seconds
+            "step {:>6}/{steps}  loss {:.4} (coef {:.4} shape {:.4} lmk {:.4} res {:.4})  landmarks {:.2} px  lr {:.1e}  {:.2} s (data wait {:.2} s)",
+            e.step,
+            e.total,
+            e.coef,
+            e.shape,
+            e.landmarks,
+            e.resolution,
+            e.landmark_rms_px,
+            e.lr,
+            e.seconds,
+            e.wait_seconds
         );
     })?;
     if let Some(from) = summary.resumed_from {

@@ -143,7 +143,11 @@ pub struct LogEntry {
     pub resolution: f64,
     /// RMS landmark error, crop pixels (a figure a person can read).
     pub landmark_rms_px: f64,
+    /// Wall time of the step, and the part of it spent waiting for the batch (rendering
+    /// slower than training shows here).
     pub seconds: f64,
+    #[serde(default)]
+    pub wait_seconds: f64,
 }
 
 /// What a finished (or stopped) run leaves.
@@ -281,71 +285,88 @@ pub fn train_until(
     let k = config.network.output_size();
 
     let mut steps_done = config.steps;
-    for step in start..config.steps {
-        let t0 = Instant::now();
-        let batch = data.batch(step, config.batch_size, config.lowest_bucket(step), config.distinct_faces)?;
-        let n = batch.crops.len();
-        let (images, buckets) = batch.crops.tensors(&autodiff);
-        let target = Tensor::<2>::from_data(TensorData::new(batch.targets.clone(), [n, k]), &autodiff);
-        let pred = net.forward(images, buckets, &config.network).coefficients;
+    // Batches are rendered on the CPU one step ahead, on their own thread, while the
+    // network trains on the current one (on a GPU the two then overlap).
+    let net = std::thread::scope(|scope| -> Result<EncoderNet, TrainError> {
+        let (tx, rx) = std::sync::mpsc::sync_channel(2);
+        let data = &data;
+        scope.spawn(move || {
+            for step in start..config.steps {
+                let batch = data.batch(step, config.batch_size, config.lowest_bucket(step), config.distinct_faces);
+                if tx.send(batch).is_err() {
+                    break;
+                }
+            }
+        });
+        for step in start..config.steps {
+            let t0 = Instant::now();
+            let batch = rx.recv().map_err(|_| TrainError::Data("the batch producer stopped".into()))??;
+            let wait_seconds = t0.elapsed().as_secs_f64();
+            let n = batch.crops.len();
+            let (images, buckets) = batch.crops.tensors(&autodiff);
+            let target = Tensor::<2>::from_data(TensorData::new(batch.targets.clone(), [n, k]), &autodiff);
+            let pred = net.forward(images, buckets, &config.network).coefficients;
 
-        let coef = ((pred.clone() - target.clone()) / units.clone()).powf_scalar(2.0).mean();
-        let shape_err = geometry.shape(pred.clone()) - geometry.shape(target.clone());
-        let shape = shape_err.powf_scalar(2.0).sum_dim(2).mean() / 25.0;
-        let lmk_err = geometry.landmark_pixels(pred.clone()) - geometry.landmark_pixels(target);
-        let lmk_sq = lmk_err.powf_scalar(2.0).sum_dim(2).mean();
-        let landmarks = lmk_sq.clone() / 16.0;
-        let mut total = coef.clone() + shape.clone() + landmarks.clone();
-        let mut resolution_value = 0.0;
-        if !batch.pairs.is_empty() {
-            let idx = |f: fn(&(usize, usize, f32)) -> i64| {
-                let v: Vec<i64> = batch.pairs.iter().map(f).collect();
-                Tensor::<1, Int>::from_data(TensorData::new(v, [batch.pairs.len()]), &autodiff)
+            let coef = ((pred.clone() - target.clone()) / units.clone()).powf_scalar(2.0).mean();
+            let shape_err = geometry.shape(pred.clone()) - geometry.shape(target.clone());
+            let shape = shape_err.powf_scalar(2.0).sum_dim(2).mean() / 25.0;
+            let lmk_err = geometry.landmark_pixels(pred.clone()) - geometry.landmark_pixels(target);
+            let lmk_sq = lmk_err.powf_scalar(2.0).sum_dim(2).mean();
+            let landmarks = lmk_sq.clone() / 16.0;
+            let mut total = coef.clone() + shape.clone() + landmarks.clone();
+            let mut resolution_value = 0.0;
+            if !batch.pairs.is_empty() {
+                let idx = |f: fn(&(usize, usize, f32)) -> i64| {
+                    let v: Vec<i64> = batch.pairs.iter().map(f).collect();
+                    Tensor::<1, Int>::from_data(TensorData::new(v, [batch.pairs.len()]), &autodiff)
+                };
+                let high = pred.clone().select(0, idx(|p| p.0 as i64)).detach();
+                let low = pred.clone().select(0, idx(|p| p.1 as i64));
+                let w: Vec<f32> = batch.pairs.iter().map(|p| p.2).collect();
+                let w = Tensor::<2>::from_data(TensorData::new(w, [batch.pairs.len(), 1]), &autodiff);
+                let ls = (((low - high) / units.clone()).powf_scalar(2.0) * w).mean();
+                resolution_value = scalar(&ls);
+                total = total + ls * config.lambda_s;
+            }
+            let entry = LogEntry {
+                step: step + 1,
+                lr: config.learning_rate(step),
+                total: scalar(&total),
+                coef: scalar(&coef),
+                shape: scalar(&shape),
+                landmarks: scalar(&landmarks),
+                resolution: resolution_value,
+                landmark_rms_px: scalar(&lmk_sq).sqrt(),
+                seconds: 0.0,
+                wait_seconds,
             };
-            let high = pred.clone().select(0, idx(|p| p.0 as i64)).detach();
-            let low = pred.clone().select(0, idx(|p| p.1 as i64));
-            let w: Vec<f32> = batch.pairs.iter().map(|p| p.2).collect();
-            let w = Tensor::<2>::from_data(TensorData::new(w, [batch.pairs.len(), 1]), &autodiff);
-            let ls = (((low - high) / units.clone()).powf_scalar(2.0) * w).mean();
-            resolution_value = scalar(&ls);
-            total = total + ls * config.lambda_s;
-        }
-        let entry = LogEntry {
-            step: step + 1,
-            lr: config.learning_rate(step),
-            total: scalar(&total),
-            coef: scalar(&coef),
-            shape: scalar(&shape),
-            landmarks: scalar(&landmarks),
-            resolution: resolution_value,
-            landmark_rms_px: scalar(&lmk_sq).sqrt(),
-            seconds: 0.0,
-        };
-        if !entry.total.is_finite() {
-            return Err(TrainError::Diverged { step: step + 1, loss: entry.total });
-        }
-        let grads = GradientsParams::from_grads(total.backward(), &net);
-        net = optimizer.step(entry.lr, net, grads);
-        let entry = LogEntry { seconds: t0.elapsed().as_secs_f64(), ..entry };
+            if !entry.total.is_finite() {
+                return Err(TrainError::Diverged { step: step + 1, loss: entry.total });
+            }
+            let grads = GradientsParams::from_grads(total.backward(), &net);
+            net = optimizer.step(entry.lr, net, grads);
+            let entry = LogEntry { seconds: t0.elapsed().as_secs_f64(), ..entry };
 
-        if (step + 1) % config.log_every == 0 || step + 1 == config.steps {
-            writeln!(log, "{}", serde_json::to_string(&entry).unwrap_or_default()).map_err(io(&files.log()))?;
-            progress(&entry);
+            if (step + 1) % config.log_every == 0 || step + 1 == config.steps {
+                writeln!(log, "{}", serde_json::to_string(&entry).unwrap_or_default()).map_err(io(&files.log()))?;
+                progress(&entry);
+            }
+            if first.is_none() {
+                first = Some(entry.clone());
+            }
+            last = Some(entry);
+            let stopping =
+                stop.after_step.is_some_and(|s| step + 1 >= s) || stop.after.is_some_and(|d| started.elapsed() >= d);
+            if (step + 1) % config.checkpoint_every == 0 || step + 1 == config.steps || stopping {
+                save_checkpoint(&files, &net, config, &optimizer, step + 1)?;
+            }
+            if stopping {
+                steps_done = step + 1;
+                break;
+            }
         }
-        if first.is_none() {
-            first = Some(entry.clone());
-        }
-        last = Some(entry);
-        let stopping =
-            stop.after_step.is_some_and(|s| step + 1 >= s) || stop.after.is_some_and(|d| started.elapsed() >= d);
-        if (step + 1) % config.checkpoint_every == 0 || step + 1 == config.steps || stopping {
-            save_checkpoint(&files, &net, config, &optimizer, step + 1)?;
-        }
-        if stopping {
-            steps_done = step + 1;
-            break;
-        }
-    }
+        Ok(net)
+    })?;
 
     let inference = net.valid();
     weights::save(&inference, &config.network, Precision::F16, &files.weights())?;
