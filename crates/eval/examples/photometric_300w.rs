@@ -6,11 +6,16 @@
 //! the photometric fit improves on. With `--full`, the full level too: the coarse and full
 //! figures then come from one run (the full level is the coarse fit plus its map).
 //!
+//! With `--encoder W` (weights file; ONNX Runtime), the encoder alone and encoder + coarse
+//! fit on the same crops too. Every level also reports its fitted landmarks' NME against the
+//! annotation (all 68, by √(w·h) of the annotated box) and its seconds per face.
+//!
 //!     cargo run --release -p facerecon-eval --example photometric_300w -- \
-//!         [--subset afw/ …] [--limit N] [--full [--smooth λ] [--magnitude λ] [--lr mm] [--iterations N]]
+//!         [--subset afw/ …] [--limit N] [--full [--smooth λ] [--magnitude λ] [--lr mm] [--iterations N]] \
+//!         [--encoder WEIGHTS]
 
 use facerecon_eval::photometric::{Rgb, psnr, ssim};
-use facerecon_recon::{FaceSource, Options, Pipeline, Refine, outputs};
+use facerecon_recon::{FaceSource, Options, Pipeline, Refine, Start, outputs};
 use facerecon_vision::pipeline::FrontEnd;
 use rayon::prelude::*;
 
@@ -19,6 +24,7 @@ fn main() {
     let mut subsets: Vec<String> = Vec::new();
     let mut limit = usize::MAX;
     let mut full = false;
+    let mut encoder: Option<String> = None;
     let mut settings = facerecon_fit::displacement::DisplacementSettings::default();
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
@@ -34,6 +40,7 @@ fn main() {
             "--smooth" => settings.lambda_smooth = num(),
             "--magnitude" => settings.lambda_magnitude = num(),
             "--lr" => settings.learning_rate = num(),
+            "--encoder" => encoder = Some(v.clone()),
             "--iterations" => settings.iterations = v.parse().expect("number"),
             _ => panic!("unknown argument {a}"),
         }
@@ -44,21 +51,36 @@ fn main() {
     let front = FrontEnd::load_standard(facerecon_vision::landmarks::DEFAULT_MODEL_PATH.as_ref()).expect("front end");
     let mut pipeline = Pipeline::new(model.clone(), front).expect("pipeline");
     pipeline.displacement = settings;
-    let levels = if full { 3 } else { 2 };
+    if let Some(w) = &encoder {
+        // One thread per session: the photos already run in parallel.
+        let runtime = facerecon_vision::onnx::OnnxRuntimeConfig { intra_op_threads: 1, ..Default::default() };
+        let e = facerecon_nn::OrtEncoder::load(w.as_ref(), &runtime).expect("encoder weights");
+        pipeline.set_encoder(std::sync::Arc::new(e)).expect("encoder matches the model");
+    }
+    // The runs per photo: (start, refine); `Full` also scores the coarse level (slot 1).
+    let mut runs = vec![
+        (Start::Landmarks, Refine::Landmarks),
+        (Start::Landmarks, if full { Refine::Full } else { Refine::Coarse }),
+    ];
+    if encoder.is_some() {
+        runs.extend([(Start::Encoder, Refine::None), (Start::Encoder, Refine::Coarse)]);
+    }
+    let names = ["landmarks", "coarse", "full", "encoder", "encoder + coarse"];
+    let slot = |run: usize| if run < 2 { run } else { run + 1 };
     let start = std::time::Instant::now();
-    let results: Vec<([[f64; 2]; 3], [f64; 3])> = rows
+    // Per photo: per slot [PSNR, SSIM, NME68, seconds]; displacement summary.
+    let results: Vec<([[f64; 4]; 5], [f64; 3])> = rows
         .par_iter()
         .filter_map(|rel| {
             let img = photos.join(rel);
             let bytes = std::fs::read(&img).ok()?;
             let pts = facerecon_vision::pts::read(&std::fs::read(img.with_extension("pts")).ok()?).ok()?;
-            let mut out = [[f64::NAN; 2]; 3];
+            let mut out = [[f64::NAN; 4]; 5];
             let mut extra = [f64::NAN; 3];
-            let mut score = |k: usize,
-                             r: &facerecon_recon::Reconstruction,
-                             face: &facerecon_recon::FaceRecon,
-                             fit: &facerecon_recon::FaceFit|
-             -> Option<()> {
+            let score = |r: &facerecon_recon::Reconstruction,
+                         face: &facerecon_recon::FaceRecon,
+                         fit: &facerecon_recon::FaceFit|
+             -> Option<[f64; 3]> {
                 let photo = facerecon_vision::crop::crop_face(&r.image, &face.face.landmark_box).image;
                 let (frame, mask) = outputs::render_reconstruction(&model, fit).ok()?;
                 let a: Vec<[f32; 3]> = photo.pixels().map(|p| p.0.map(|c| c as f32 / 255.0)).collect();
@@ -66,13 +88,15 @@ fn main() {
                     frame.color.iter().map(|c| [c[0], c[1], c[2]].map(|x| x as f32 / 255.0)).collect();
                 let (ra, rb) =
                     (Rgb { width: 224, height: 224, pixels: &a }, Rgb { width: 224, height: 224, pixels: &b });
-                out[k] = [psnr(&ra, &rb, &mask)?, ssim(&ra, &rb, &mask)?];
-                Some(())
+                let nme = facerecon_eval::landmarks::nme68(&fit.fitted_landmarks, &pts)?;
+                Some([psnr(&ra, &rb, &mask)?, ssim(&ra, &rb, &mask)?, nme])
             };
-            let last = if full { Refine::Full } else { Refine::Coarse };
-            for (k, refine) in [Refine::Landmarks, last].into_iter().enumerate() {
-                let o = Options { faces: FaceSource::Landmarks(vec![pts.clone()]), refine, ..Default::default() };
+            for (k, &(start, refine)) in runs.iter().enumerate() {
+                let o =
+                    Options { faces: FaceSource::Landmarks(vec![pts.clone()]), start, refine, ..Default::default() };
+                let t0 = std::time::Instant::now();
                 let r = pipeline.reconstruct(&bytes, &o).ok()?;
+                let seconds = t0.elapsed().as_secs_f64();
                 let face = r.faces.first()?;
                 let fit = face.fit.as_ref().ok()?;
                 if let Some(d) = &fit.displacement {
@@ -82,11 +106,11 @@ fn main() {
                 if refine == Refine::Full {
                     // The coarse level is the same fit without its map.
                     let coarse = facerecon_recon::FaceFit { displacement: None, ..fit.clone() };
-                    score(1, &r, face, &coarse)?;
-                    score(2, &r, face, fit)?;
-                } else {
-                    score(k, &r, face, fit)?;
+                    let [p, q, n] = score(&r, face, &coarse)?;
+                    out[1] = [p, q, n, f64::NAN];
                 }
+                let [p, q, n] = score(&r, face, fit)?;
+                out[slot(k)] = [p, q, n, seconds];
             }
             Some((out, extra))
         })
@@ -102,10 +126,20 @@ fn main() {
         rows.len(),
         start.elapsed().as_secs_f64()
     );
-    for (k, name) in ["landmarks", "coarse", "full"].iter().enumerate().take(levels) {
-        let (p, pm) = stat(k, 0);
-        let (s, sm) = stat(k, 1);
-        println!("  {name:9}: PSNR {p:.2} dB (median {pm:.2}), SSIM {s:.3} (median {sm:.3})");
+    for k in 0..runs.len() {
+        for k in if k == 1 && full { vec![1, 2] } else { vec![slot(k)] } {
+            let (p, pm) = stat(k, 0);
+            let (s, sm) = stat(k, 1);
+            let (n, nm) = stat(k, 2);
+            let (t, _) = stat(k, 3);
+            let time = if t.is_nan() { String::new() } else { format!(", {t:.2} s per face") };
+            println!(
+                "  {:16}: PSNR {p:.2} dB (median {pm:.2}), SSIM {s:.3} (median {sm:.3}), NME68 {:.2} % (median {:.2} %){time}",
+                names[k],
+                100.0 * n,
+                100.0 * nm
+            );
+        }
     }
     if full {
         let mean = |i: usize| results.iter().map(|r| r.1[i]).sum::<f64>() / results.len().max(1) as f64;

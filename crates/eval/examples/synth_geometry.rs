@@ -9,16 +9,19 @@
 //!
 //!     cargo run --release -p facerecon-eval --example synth_geometry -- [--per-bucket N] [--seed S] \
 //!         [--buckets 0,1,2,3] [--sigma S] [--lambda-id L] [--lambda-exp L] [--coarse [--iterations N]] \
-//!         [--full [--smooth λ] [--lr mm]] [--optimiser adam|lm] [--ph-lambda-id λ] [--ph-lambda-exp λ]
+//!         [--full [--smooth λ] [--lr mm]] [--optimiser adam|lm] [--ph-lambda-id λ] [--ph-lambda-exp λ] \
+//!         [--encoder WEIGHTS]
 //!
 //! `--coarse` adds the photometric fit started from the exact landmarks' landmark fit;
 //! `--full` the displacement map on it too (the coarse figure then comes from the same run).
+//! `--encoder W` adds the learned encoder (ONNX Runtime, weights file W) on the same crop
+//! (from the exact landmarks): alone, and refined by the coarse fit, with seconds per face.
 
 use facerecon_eval::align::Metric;
 use facerecon_eval::geometry::{self, ErrorStats, GeometryCase};
 use facerecon_model::scene::vertex_normals;
 use facerecon_model::{Coefficients, DisplacementMap, Extent, MorphableModel};
-use facerecon_recon::{FaceSource, Options, Pipeline, Refine};
+use facerecon_recon::{FaceSource, Options, Pipeline, Refine, Start};
 use facerecon_synth::{Generator, SynthConfig};
 use facerecon_vision::face::FaceBox;
 use facerecon_vision::pipeline::FrontEnd;
@@ -82,6 +85,10 @@ struct Row {
     coarse_info: Vec<[f64; 3]>,
     /// The coarse fit with its displacement map.
     full: Vec<[f64; 2]>,
+    /// The encoder alone, and encoder + coarse fit (with seconds per face of each).
+    encoder: Vec<[f64; 2]>,
+    encoder_coarse: Vec<[f64; 2]>,
+    encoder_seconds: Vec<[f64; 2]>,
     /// Inner-49 NME of the detected landmarks against the truth's (visible faces).
     landmark_nme: Vec<f64>,
 }
@@ -96,6 +103,7 @@ fn main() {
     let mut iterations: Option<usize> = None;
     let mut displacement = facerecon_fit::displacement::DisplacementSettings::default();
     let mut photometric = facerecon_fit::photometric::PhotometricSettings::default();
+    let mut encoder: Option<String> = None;
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         if a == "--coarse" || a == "--full" {
@@ -126,6 +134,7 @@ fn main() {
             "--ph-lambda-exp" => photometric.lambda_exp = v.parse().expect("number"),
             "--smooth" => displacement.lambda_smooth = v.parse().expect("number"),
             "--lr" => displacement.learning_rate = v.parse().expect("number"),
+            "--encoder" => encoder = Some(v),
             "--buckets" => buckets = v.split(',').map(|b| b.parse().expect("bucket 0-3")).collect(),
             _ => panic!("unknown argument {a}"),
         }
@@ -139,6 +148,12 @@ fn main() {
         pipeline.photometric.iterations = n;
     }
     pipeline.displacement = displacement;
+    if let Some(w) = &encoder {
+        // One thread per session: the faces already run in parallel.
+        let runtime = facerecon_vision::onnx::OnnxRuntimeConfig { intra_op_threads: 1, ..Default::default() };
+        let e = facerecon_nn::OrtEncoder::load(w.as_ref(), &runtime).expect("encoder weights");
+        pipeline.set_encoder(std::sync::Arc::new(e)).expect("encoder matches the model");
+    }
     let start = std::time::Instant::now();
     println!(
         "synthetic geometry error, {per_bucket} faces per bucket, seed {seed}, yaw ≤ 60°, ICP {ICP_ITERATIONS} iterations; {settings:?}"
@@ -181,6 +196,26 @@ fn main() {
                         row.full.push(errors(&model, &f.coefficients, Some(&d.map), &truth));
                     }
                 }
+                if encoder.is_some() {
+                    let mut seconds = [0.0; 2];
+                    for (k, refine) in [Refine::None, Refine::Coarse].into_iter().enumerate() {
+                        let opts = Options {
+                            faces: FaceSource::Landmarks(vec![exact.clone()]),
+                            start: Start::Encoder,
+                            refine,
+                            ..Default::default()
+                        };
+                        let t0 = std::time::Instant::now();
+                        if let Ok(r) = pipeline.reconstruct_image(s.image.clone(), &opts)
+                            && let Some(Ok(f)) = r.faces.first().map(|f| &f.fit)
+                        {
+                            seconds[k] = t0.elapsed().as_secs_f64();
+                            let e = both(&f.coefficients);
+                            if k == 0 { row.encoder.push(e) } else { row.encoder_coarse.push(e) }
+                        }
+                    }
+                    row.encoder_seconds.push(seconds);
+                }
                 let tbox = FaceBox::of_points(exact.iter().copied()).expect("box");
                 if let Ok(r) = pipeline.reconstruct_image(s.image, &Options::default()) {
                     let best = r
@@ -221,6 +256,17 @@ fn main() {
                 info.iter().map(|x| x[1]).sum::<f64>() / n,
                 info.iter().map(|x| x[2]).sum::<f64>() / n,
                 info.len()
+            );
+        }
+        if encoder.is_some() {
+            let secs: Vec<[f64; 2]> = rows.iter().flat_map(|r| r.encoder_seconds.iter().copied()).collect();
+            let n = secs.len().max(1) as f64;
+            println!(
+                "  bucket {bucket}: encoder alone: {} — {:.3} s per face; encoder + coarse fit: {} — {:.2} s per face",
+                fmt(all(|r| &r.encoder)),
+                secs.iter().map(|x| x[0]).sum::<f64>() / n,
+                fmt(all(|r| &r.encoder_coarse)),
+                secs.iter().map(|x| x[1]).sum::<f64>() / n,
             );
         }
         if full {
