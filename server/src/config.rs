@@ -7,6 +7,7 @@ use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
+use facerecon_nn::Compute;
 
 /// Everything the server is configured with.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -21,8 +22,11 @@ pub struct Config {
     /// dlib 68-point shape predictor.
     pub landmark_model: PathBuf,
     /// Encoder weights (`facerecon-train`'s `encoder-f16.safetensors`); `None`: no encoder,
-    /// requests start from the landmark fit. Run by ONNX Runtime on the CPU.
+    /// requests start from the landmark fit.
     pub encoder: Option<PathBuf>,
+    /// Where the encoder runs: `cpu` (ONNX Runtime, the default) or `gpu` (burn's Vulkan
+    /// backend; servers built with `--features gpu`, decision 0901).
+    pub encoder_device: Compute,
     /// Faces per batch handed to the backend at most.
     pub max_batch_size: usize,
     /// How long the batcher waits for a batch to fill, ms. 0 (default): greedy, a batch is
@@ -67,6 +71,7 @@ impl Default for Config {
             model: None,
             landmark_model: PathBuf::from(facerecon_vision::landmarks::DEFAULT_MODEL_PATH),
             encoder: None,
+            encoder_device: Compute::Cpu,
             max_batch_size: 16,
             max_queue_delay_ms: 0,
             queue_capacity: 64,
@@ -100,6 +105,10 @@ impl Config {
             self.tls_cert.is_some() == self.tls_key.is_some(),
             "tls_cert and tls_key go together: set both or neither"
         );
+        anyhow::ensure!(
+            self.encoder_device != Compute::Gpu || Compute::GPU_BUILT,
+            "encoder_device = gpu, but this server was built without the GPU backend (build with `--features gpu`)"
+        );
         if let Some(t) = &self.auth_token {
             anyhow::ensure!(!t.trim().is_empty(), "auth_token is empty");
         }
@@ -129,6 +138,10 @@ pub struct Args {
     /// Encoder weights; requests may then start from the encoder [default: none].
     #[arg(long, env = "FACERECON_ENCODER")]
     pub encoder: Option<PathBuf>,
+    /// Where the encoder runs: cpu (ONNX Runtime) or gpu (burn Vulkan; `--features gpu`)
+    /// [default: cpu].
+    #[arg(long, env = "FACERECON_ENCODER_DEVICE")]
+    pub encoder_device: Option<Compute>,
     /// Faces per batch at most [default: 16].
     #[arg(long, env = "FACERECON_MAX_BATCH_SIZE")]
     pub max_batch_size: Option<usize>,
@@ -180,7 +193,7 @@ impl Args {
         macro_rules! set_some {
             ($($f:ident),*) => { $( if let Some(v) = self.$f { c.$f = Some(v); } )* };
         }
-        set!(listen, landmark_model, max_batch_size, max_queue_delay_ms, queue_capacity, cpu_threads);
+        set!(listen, landmark_model, encoder_device, max_batch_size, max_queue_delay_ms, queue_capacity, cpu_threads);
         set!(max_message_bytes, max_image_pixels, max_faces, shutdown_grace_s, log_format);
         set_some!(model, encoder, tls_cert, tls_key, auth_token);
         if let Some(m) = self.metrics_listen {
@@ -242,5 +255,11 @@ mod tests {
         assert!(c.validate().is_err());
         let c = Config { tls_cert: Some("a.pem".into()), ..Config::default() };
         assert!(c.validate().is_err());
+        // The GPU path only where it is built in, said at start-up.
+        let c = Config { encoder_device: Compute::Gpu, ..Config::default() };
+        assert_eq!(c.validate().is_ok(), Compute::GPU_BUILT);
+        let args = Args::try_parse_from(["facerecon-server", "--encoder-device", "gpu"]).unwrap();
+        assert_eq!(args.encoder_device, Some(Compute::Gpu));
+        assert!(Args::try_parse_from(["facerecon-server", "--encoder-device", "tpu"]).is_err());
     }
 }

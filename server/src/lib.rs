@@ -52,11 +52,10 @@ pub fn default_loader(config: &Config) -> Loader {
         if let Some(w) = &config.encoder {
             // ONNX Runtime's own threads for one batch; batches run one at a time.
             let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-            let runtime = facerecon_vision::onnx::OnnxRuntimeConfig { intra_op_threads: threads, ..Default::default() };
-            let encoder = facerecon_nn::OrtEncoder::load(w, &runtime)
-                .with_context(|| format!("loading the encoder {}", w.display()))?;
-            tracing::info!(weights = %w.display(), path = %facerecon_nn::Encoder::describe(&encoder), "encoder loaded");
-            pipeline.set_encoder(Arc::new(encoder))?;
+            let encoder = facerecon_nn::encoder::load(w, config.encoder_device, threads)
+                .with_context(|| format!("loading the encoder {} ({})", w.display(), config.encoder_device))?;
+            tracing::info!(weights = %w.display(), path = %encoder.describe(), "encoder loaded");
+            pipeline.set_encoder(encoder)?;
         }
         pipeline.limits.max_pixels = config.max_image_pixels;
         pipeline.limits.max_encoded_bytes = pipeline.limits.max_encoded_bytes.min(config.max_message_bytes);

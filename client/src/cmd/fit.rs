@@ -35,9 +35,13 @@ pub struct FitArgs {
     #[arg(long, value_enum)]
     refine: Option<RefineArg>,
     /// Start from the learned encoder of this weights file (`facerecon-train` writes
-    /// `encoder-f16.safetensors`), run by ONNX Runtime on the CPU.
+    /// `encoder-f16.safetensors`).
     #[arg(long)]
     encoder: Option<PathBuf>,
+    /// Where the encoder runs: `cpu` (ONNX Runtime) or `gpu` (burn's Vulkan backend, in a
+    /// build with `--features gpu`).
+    #[arg(long, default_value = "cpu")]
+    encoder_device: facerecon_nn::Compute,
     /// One JSON object per photo on stdout (one per line).
     #[arg(long)]
     json: bool,
@@ -88,10 +92,9 @@ pub fn run(args: FitArgs) -> anyhow::Result<ExitCode> {
     let front = FrontEnd::load_standard(&args.landmark_model)?;
     let mut pipeline = Pipeline::new(model, front)?;
     if let Some(w) = &args.encoder {
-        let runtime = facerecon_vision::onnx::OnnxRuntimeConfig { intra_op_threads: 2, ..Default::default() };
-        let encoder = facerecon_nn::OrtEncoder::load(w, &runtime)
-            .with_context(|| format!("loading the encoder {}", w.display()))?;
-        pipeline.set_encoder(std::sync::Arc::new(encoder))?;
+        let encoder = facerecon_nn::encoder::load(w, args.encoder_device, 2)
+            .with_context(|| format!("loading the encoder {} ({})", w.display(), args.encoder_device))?;
+        pipeline.set_encoder(encoder)?;
     }
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let bar = (args.images.len() > 1).then(|| {

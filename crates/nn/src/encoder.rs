@@ -6,7 +6,7 @@
 //! per crop.
 
 use std::path::Path;
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 
 use burn::tensor::{Device, Int, Tensor, TensorData};
 use facerecon_model::Coefficients;
@@ -15,9 +15,9 @@ use facerecon_vision::onnx::{ModelSource, OnnxRuntimeConfig, load_session};
 use image::RgbImage;
 use ort::session::Session;
 
-use crate::NnError;
 use crate::config::{BUCKETS, NetworkConfig};
 use crate::network::EncoderNet;
+use crate::{Compute, NnError};
 
 /// Most crops in one batch (bounds the input tensor: 4096 × 3 × 224² floats ≈ 2.5 GB).
 pub const MAX_BATCH: usize = 4096;
@@ -172,6 +172,30 @@ impl Encoder for BurnEncoder {
         let (images, buckets) = batch.tensors(&self.device);
         let out = self.net.forward(images, buckets, &self.config).coefficients;
         out.into_data().convert::<f32>().try_into_vec::<f32>().map_err(|e| NnError::Shape(format!("{e:?}")))
+    }
+}
+
+/// Loads a weights file as an encoder on `compute`: ONNX Runtime with `cpu_threads`
+/// intra-op threads on the CPU (the production CPU path), or the burn network on the GPU.
+/// The GPU path runs one crop through the network before returning, so a machine without a
+/// usable GPU fails here with an error rather than on the first request (burn reports a
+/// missing adapter by panicking), and the first caller does not pay the kernels' compilation.
+pub fn load(path: &Path, compute: Compute, cpu_threads: usize) -> Result<Arc<dyn Encoder>, NnError> {
+    match compute {
+        Compute::Cpu => {
+            let runtime = OnnxRuntimeConfig { intra_op_threads: cpu_threads.max(1), ..Default::default() };
+            Ok(Arc::new(OrtEncoder::load(path, &runtime)?))
+        }
+        Compute::Gpu => {
+            let encoder = BurnEncoder::load(path, compute.device()?)?;
+            let size = encoder.config.input_size;
+            let mut batch = CropBatch::new(size);
+            batch.push(&RgbImage::new(size as u32, size as u32), Bucket::ALL[0])?;
+            match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| encoder.encode_rows(&batch))) {
+                Ok(rows) => rows.map(|_| Arc::new(encoder) as Arc<dyn Encoder>),
+                Err(_) => Err(NnError::Device("burn's Vulkan backend found no usable GPU".into())),
+            }
+        }
     }
 }
 

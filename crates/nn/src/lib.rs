@@ -49,6 +49,8 @@ pub enum NnError {
     NonFinite(String),
     #[error("ONNX Runtime: {0}")]
     Runtime(String),
+    #[error("GPU: {0}")]
+    Device(String),
 }
 
 impl NnError {

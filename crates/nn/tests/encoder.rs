@@ -9,7 +9,7 @@ use burn::module::Param;
 use burn::tensor::{Device, Tensor, TensorData};
 use facerecon_model::{Coefficients, MorphableModel};
 use facerecon_nn::weights::{self, Precision};
-use facerecon_nn::{BurnEncoder, CropBatch, Encoder, EncoderNet, NetworkConfig, NnError, OrtEncoder};
+use facerecon_nn::{BurnEncoder, Compute, CropBatch, Encoder, EncoderNet, NetworkConfig, NnError, OrtEncoder};
 use facerecon_vision::crop::Bucket;
 use facerecon_vision::onnx::{OnnxRuntimeConfig, resolve_runtime_library};
 use image::RgbImage;
@@ -281,4 +281,28 @@ fn onnx_runtime_agrees_with_the_burn_network() {
     // And the rows decode to coefficients that differ from the mean face.
     let c = ort.encode(&input).unwrap();
     assert!(c[0].identity.iter().any(|v| v.abs() > 0.1));
+}
+
+#[test]
+fn load_picks_the_path_the_device_names() {
+    let Some(runtime) = ort_runtime() else { return };
+    let config = tiny();
+    let device = Device::flex();
+    let net = perturbed(&config, &device);
+    let dir = std::env::temp_dir().join(format!("facerecon-nn-load-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("w.safetensors");
+    weights::save(&net, &config, Precision::F32, &path).unwrap();
+    let burn = BurnEncoder::new(config.clone(), net, device);
+    let input = batch(&config, &[Bucket::B1, Bucket::B3]);
+    let reference = burn.encode_rows(&input).unwrap();
+    let cpu = facerecon_nn::encoder::load(&path, Compute::Cpu, runtime.intra_op_threads).unwrap();
+    assert!(cpu.describe().starts_with("onnxruntime"), "{}", cpu.describe());
+    let scale = reference.iter().flatten().fold(1.0f32, |m, v| m.max(v.abs()));
+    assert!(max_abs_diff(&cpu.encode_rows(&input).unwrap(), &reference) <= 1e-4 * scale);
+    if !Compute::GPU_BUILT {
+        let e = facerecon_nn::encoder::load(&path, Compute::Gpu, 1).err().expect("no GPU backend in this build");
+        assert!(e.to_string().contains("--features gpu"), "{e}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
 }
