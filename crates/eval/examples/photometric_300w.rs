@@ -12,7 +12,7 @@
 //!
 //!     cargo run --release -p facerecon-eval --example photometric_300w -- \
 //!         [--subset afw/ …] [--limit N] [--full [--smooth λ] [--magnitude λ] [--lr mm] [--iterations N]] \
-//!         [--encoder WEIGHTS]
+//!         [--encoder WEIGHTS] [--range λrange]
 
 use facerecon_eval::photometric::{Rgb, psnr, ssim};
 use facerecon_recon::{FaceSource, Options, Pipeline, Refine, Start, outputs};
@@ -25,6 +25,7 @@ fn main() {
     let mut limit = usize::MAX;
     let mut full = false;
     let mut encoder: Option<String> = None;
+    let mut lambda_range: Option<f64> = None;
     let mut settings = facerecon_fit::displacement::DisplacementSettings::default();
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
@@ -41,6 +42,7 @@ fn main() {
             "--magnitude" => settings.lambda_magnitude = num(),
             "--lr" => settings.learning_rate = num(),
             "--encoder" => encoder = Some(v.clone()),
+            "--range" => lambda_range = Some(num()),
             "--iterations" => settings.iterations = v.parse().expect("number"),
             _ => panic!("unknown argument {a}"),
         }
@@ -51,6 +53,9 @@ fn main() {
     let front = FrontEnd::load_standard(facerecon_vision::landmarks::DEFAULT_MODEL_PATH.as_ref()).expect("front end");
     let mut pipeline = Pipeline::new(model.clone(), front).expect("pipeline");
     pipeline.displacement = settings;
+    if let Some(l) = lambda_range {
+        pipeline.photometric.lambda_range = l;
+    }
     if let Some(w) = &encoder {
         // One thread per session: the photos already run in parallel.
         let runtime = facerecon_vision::onnx::OnnxRuntimeConfig { intra_op_threads: 1, ..Default::default() };
@@ -69,7 +74,7 @@ fn main() {
     let slot = |run: usize| if run < 2 { run } else { run + 1 };
     let start = std::time::Instant::now();
     // Per photo: per slot [PSNR, SSIM, NME68, seconds]; displacement summary.
-    let results: Vec<([[f64; 4]; 5], [f64; 3])> = rows
+    let results: Vec<([[f64; 4]; 5], [f64; 3], f64)> = rows
         .par_iter()
         .filter_map(|rel| {
             let img = photos.join(rel);
@@ -77,6 +82,7 @@ fn main() {
             let pts = facerecon_vision::pts::read(&std::fs::read(img.with_extension("pts")).ok()?).ok()?;
             let mut out = [[f64::NAN; 4]; 5];
             let mut extra = [f64::NAN; 3];
+            let mut extra_range = f64::NAN;
             let score = |r: &facerecon_recon::Reconstruction,
                          face: &facerecon_recon::FaceRecon,
                          fit: &facerecon_recon::FaceFit|
@@ -111,8 +117,14 @@ fn main() {
                 }
                 let [p, q, n] = score(&r, face, fit)?;
                 out[slot(k)] = [p, q, n, seconds];
+                if slot(k) == 1 {
+                    // How much of the fitted albedo lies outside [0, 1] (what λrange acts on).
+                    let a = model.albedo(&fit.coefficients.albedo, facerecon_model::Extent::Face).ok()?;
+                    let outside = a.iter().flatten().filter(|v| !(0.0..=1.0).contains(*v)).count();
+                    extra_range = outside as f64 / (3 * a.len()).max(1) as f64;
+                }
             }
-            Some((out, extra))
+            Some((out, extra, extra_range))
         })
         .collect();
     let stat = |k: usize, m: usize| {
@@ -141,6 +153,13 @@ fn main() {
             );
         }
     }
+    let outside = results.iter().map(|r| r.2).filter(|v| v.is_finite()).collect::<Vec<_>>();
+    println!(
+        "  coarse fit's albedo outside [0, 1]: {:.2} % of the face's values on average, {} of {} photos with any",
+        100.0 * outside.iter().sum::<f64>() / outside.len().max(1) as f64,
+        outside.iter().filter(|&&v| v > 0.0).count(),
+        outside.len()
+    );
     if full {
         let mean = |i: usize| results.iter().map(|r| r.1[i]).sum::<f64>() / results.len().max(1) as f64;
         println!(

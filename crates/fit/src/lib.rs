@@ -11,6 +11,7 @@
 //!   primitive, each checked against finite differences.
 //! * [`photometric`] — the coarse fit: every coefficient by Adam through the decoder.
 //! * [`levenberg`] — the same coarse fit by Levenberg–Marquardt (the measured alternative).
+//! * [`priors`] — priors on the decoded face itself (the albedo range of Eq. 2.39).
 //! * [`displacement`] — the displacement map after the coarse fit (thesis ch. 6).
 //! * [`landmark_fit`] — pose, then identity and expression by regularised least squares,
 //!   alternating (expressions kept in [0, 1]).
@@ -25,6 +26,7 @@ pub mod error;
 pub mod landmark_fit;
 pub mod levenberg;
 pub mod photometric;
+pub mod priors;
 pub mod subset;
 
 pub use error::FitError;

@@ -1,7 +1,8 @@
 //! The photometric fit (DESIGN §6, single image, Table 6.1's weights): all coefficients —
 //! identity, expression, albedo, 25×3 SH light, rotation, translation — minimising
 //!
-//! `λph·ℓph + λlms·ℓlms + λid‖ws‖² + λexp‖we‖² + λtex‖wt‖²`, `we` kept in [0, 1],
+//! `λph·ℓph + λlms·ℓlms + λid‖ws‖² + λexp‖we‖² + λtex‖wt‖² + λrange·ℓrange`, `we` kept in
+//! [0, 1], `ℓrange` the albedo range penalty of Eq. 2.39 ([`crate::priors`]),
 //!
 //! with `ℓph = (1/σph)·mean over covered pixels of ‖I(X) − Ī‖₁` (the rendered face against
 //! the crop) and `ℓlms = (1/68)·Σ‖π(v_j) − l_j‖₁` (crop pixels), by Levenberg–Marquardt
@@ -51,6 +52,8 @@ pub struct PhotometricSettings {
     pub lambda_id: f64,
     pub lambda_exp: f64,
     pub lambda_tex: f64,
+    /// λrange of Eq. 3.7 (Table 3.2): albedo outside [0, 1] ([`crate::priors::albedo_range`]).
+    pub lambda_range: f64,
     /// σph of Eq. 3.5.
     pub sigma_ph: f64,
     pub iterations: usize,
@@ -76,6 +79,7 @@ impl Default for PhotometricSettings {
             lambda_id: 3e-3,
             lambda_exp: 2.5e-4,
             lambda_tex: 1e-4,
+            lambda_range: 1000.0,
             sigma_ph: 0.043,
             iterations: 45,
             time_budget: Duration::from_secs(10),
@@ -445,8 +449,13 @@ impl<'a> Objective<'a> {
         loss += prior(0..l.identity, st.lambda_id)
             + prior(l.identity..l.shape, st.lambda_exp)
             + prior(l.albedo(), st.lambda_tex);
+        let mut g_albedo = gradient.then(|| vec![DVec3::ZERO; f.albedo.len()]);
+        loss += crate::priors::albedo_range(&f.albedo, st.lambda_range, g_albedo.as_deref_mut());
         let gradient = gradient.then(|| {
-            let gsh = shading::vjp(&f.albedo, &f.normals, &f.light, &g_colors);
+            let mut gsh = shading::vjp(&f.albedo, &f.normals, &f.light, &g_colors);
+            for (a, b) in gsh.albedo.iter_mut().zip(g_albedo.iter().flatten()) {
+                *a += *b;
+            }
             for (a, b) in g_y.iter_mut().zip(normals::vjp(&f.points, self.target.triangles, &gsh.normals)) {
                 *a += b;
             }
