@@ -143,9 +143,10 @@ pub struct LogEntry {
     pub resolution: f64,
     /// RMS landmark error, crop pixels (a figure a person can read).
     pub landmark_rms_px: f64,
-    /// Wall time of the step, and the part of it spent waiting for the batch (rendering
-    /// slower than training shows here).
+    /// Wall time of the step.
     pub seconds: f64,
+    /// The part of it spent waiting for the batch (rendering slower than training shows
+    /// here).
     #[serde(default)]
     pub wait_seconds: f64,
 }
