@@ -12,7 +12,7 @@
 //!
 //!     cargo run --release -p facerecon-eval --example photometric_300w -- \
 //!         [--subset afw/ …] [--limit N] [--full [--smooth λ] [--magnitude λ] [--lr mm] [--iterations N]] \
-//!         [--encoder WEIGHTS] [--range λrange]
+//!         [--encoder WEIGHTS] [--range λrange] [--no-skin-mask]
 
 use facerecon_eval::photometric::{Rgb, psnr, ssim};
 use facerecon_recon::{FaceSource, Options, Pipeline, Refine, Start, outputs};
@@ -26,11 +26,16 @@ fn main() {
     let mut full = false;
     let mut encoder: Option<String> = None;
     let mut lambda_range: Option<f64> = None;
+    let mut skin_mask = true;
     let mut settings = facerecon_fit::displacement::DisplacementSettings::default();
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         if a == "--full" {
             full = true;
+            continue;
+        }
+        if a == "--no-skin-mask" {
+            skin_mask = false;
             continue;
         }
         let v = args.next().unwrap_or_else(|| panic!("{a} needs a value"));
@@ -53,6 +58,7 @@ fn main() {
     let front = FrontEnd::load_standard(facerecon_vision::landmarks::DEFAULT_MODEL_PATH.as_ref()).expect("front end");
     let mut pipeline = Pipeline::new(model.clone(), front).expect("pipeline");
     pipeline.displacement = settings;
+    pipeline.photometric.skin_mask = skin_mask;
     if let Some(l) = lambda_range {
         pipeline.photometric.lambda_range = l;
     }

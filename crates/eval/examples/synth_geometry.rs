@@ -10,10 +10,12 @@
 //!     cargo run --release -p facerecon-eval --example synth_geometry -- [--per-bucket N] [--seed S] \
 //!         [--buckets 0,1,2,3] [--sigma S] [--lambda-id L] [--lambda-exp L] [--coarse [--iterations N]] \
 //!         [--full [--smooth λ] [--lr mm]] [--optimiser adam|lm] [--ph-lambda-id λ] [--ph-lambda-exp λ] \
-//!         [--encoder WEIGHTS]
+//!         [--encoder WEIGHTS] [--occlude] [--no-skin-mask]
 //!
 //! `--coarse` adds the photometric fit started from the exact landmarks' landmark fit;
 //! `--full` the displacement map on it too (the coarse figure then comes from the same run).
+//! `--occlude` draws an occluder over each face (`facerecon_synth::occluder`: up to a quarter
+//! of its landmark box); `--no-skin-mask` turns the coarse fit's skin mask off.
 //! `--encoder W` adds the learned encoder (ONNX Runtime, weights file W) on the same crop
 //! (from the exact landmarks): alone, and refined by the coarse fit, with seconds per face.
 
@@ -82,6 +84,8 @@ struct Row {
     /// Coarse (photometric) fit from the exact landmarks' landmark fit: error, seconds,
     /// photometric L1 before / after.
     coarse: Vec<[f64; 2]>,
+    /// Mean absolute albedo error of the coarse fit over the face's vertices (0–1 scale).
+    coarse_albedo: Vec<f64>,
     coarse_info: Vec<[f64; 3]>,
     /// The coarse fit with its displacement map.
     full: Vec<[f64; 2]>,
@@ -104,11 +108,20 @@ fn main() {
     let mut displacement = facerecon_fit::displacement::DisplacementSettings::default();
     let mut photometric = facerecon_fit::photometric::PhotometricSettings::default();
     let mut encoder: Option<String> = None;
+    let mut occlude = false;
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         if a == "--coarse" || a == "--full" {
             coarse = true;
             full |= a == "--full";
+            continue;
+        }
+        if a == "--occlude" {
+            occlude = true;
+            continue;
+        }
+        if a == "--no-skin-mask" {
+            photometric.skin_mask = false;
             continue;
         }
         let v = args.next().unwrap_or_else(|| panic!("{a} needs a value"));
@@ -167,7 +180,14 @@ fn main() {
         let rows: Vec<Row> = (0..per_bucket)
             .into_par_iter()
             .map(|i| {
-                let s = generator.sample(seed * 100 + bucket as u64, i).expect("sample");
+                let mut s = generator.sample(seed * 100 + bucket as u64, i).expect("sample");
+                if occlude {
+                    // An occluder over the face's landmark box (the ground truth stays the face's).
+                    let b = FaceBox::of_points(s.truth.landmarks.iter().map(|l| l.xy)).expect("box");
+                    let area = [b.x0 as f64, b.y0 as f64, (b.x1 - b.x0) as f64, (b.y1 - b.y0) as f64];
+                    let mut rng = facerecon_synth::rng::Rng::for_sample(seed ^ 0x0CC1_0DE5, i);
+                    facerecon_synth::occluder::occlude(&mut s.image, area, &mut rng);
+                }
                 let c = &s.truth.coefficients;
                 let truth = shape(&model, &c.identity, &c.expression, None);
                 let both = |pred: &Coefficients| errors(&model, pred, None, &truth);
@@ -190,6 +210,10 @@ fn main() {
                     // (The coarse row's seconds include the displacement stage with --full.)
                     if let Some(p) = &f.photometric {
                         row.coarse.push(both(&f.coefficients));
+                        let albedo = |w: &[f32]| model.albedo(w, Extent::Face).expect("albedo");
+                        let (a, b) = (albedo(&f.coefficients.albedo), albedo(&c.albedo));
+                        let err = a.iter().flatten().zip(b.iter().flatten()).map(|(x, y)| (x - y).abs() as f64);
+                        row.coarse_albedo.push(err.sum::<f64>() / (3 * a.len()).max(1) as f64);
                         row.coarse_info.push([t0.elapsed().as_secs_f64(), p.loss_start, p.loss_end]);
                     }
                     if let Some(d) = &f.displacement {
@@ -249,9 +273,11 @@ fn main() {
         if coarse {
             let info: Vec<[f64; 3]> = rows.iter().flat_map(|r| r.coarse_info.iter().copied()).collect();
             let n = info.len().max(1) as f64;
+            let albedo: Vec<f64> = rows.iter().flat_map(|r| r.coarse_albedo.iter().copied()).collect();
             println!(
-                "  bucket {bucket}: coarse fit from the exact landmarks' fit: {} — {:.2} s per face, loss {:.2} → {:.2} (means of {} faces)",
+                "  bucket {bucket}: coarse fit from the exact landmarks' fit: {} — albedo error {:.4} — {:.2} s per face, loss {:.2} → {:.2} (means of {} faces)",
                 fmt(all(|r| &r.coarse)),
+                albedo.iter().sum::<f64>() / albedo.len().max(1) as f64,
                 info.iter().map(|x| x[0]).sum::<f64>() / n,
                 info.iter().map(|x| x[1]).sum::<f64>() / n,
                 info.iter().map(|x| x[2]).sum::<f64>() / n,

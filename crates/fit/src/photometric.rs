@@ -54,6 +54,9 @@ pub struct PhotometricSettings {
     pub lambda_tex: f64,
     /// λrange of Eq. 3.7 (Table 3.2): albedo outside [0, 1] ([`crate::priors::albedo_range`]).
     pub lambda_range: f64,
+    /// Keep only skin-coloured pixels (and eyes and mouth) in the photometric term
+    /// ([`Target::estimate_skin`]).
+    pub skin_mask: bool,
     /// σph of Eq. 3.5.
     pub sigma_ph: f64,
     pub iterations: usize,
@@ -80,6 +83,7 @@ impl Default for PhotometricSettings {
             lambda_exp: 2.5e-4,
             lambda_tex: 1e-4,
             lambda_range: 1000.0,
+            skin_mask: true,
             sigma_ph: 0.043,
             iterations: 45,
             time_budget: Duration::from_secs(10),
@@ -149,6 +153,12 @@ pub(crate) struct Target<'a> {
     pub(crate) triangles: &'a [[u32; 3]],
     pub(crate) landmarks: &'a [[f32; 2]],
     pub(crate) landmark_vertices: &'a [u32],
+    /// Per crop pixel: whether its colour is the face's skin ([`Target::estimate_skin`]);
+    /// `None`: every pixel of the region counts.
+    pub(crate) skin: Option<Vec<bool>>,
+    /// Per vertex: eyes and mouth, kept whatever their colour (they are the face's, and
+    /// not skin-coloured).
+    pub(crate) features: Vec<bool>,
 }
 
 impl<'a> Target<'a> {
@@ -179,7 +189,58 @@ impl<'a> Target<'a> {
             triangles: model.extent_triangles(Extent::Face),
             landmarks,
             landmark_vertices,
+            skin: None,
+            features: {
+                let (eyes, mouth) = (model.mask(facerecon_model::Mask::Eyes), model.mask(facerecon_model::Mask::Mouth));
+                eyes.iter().zip(mouth).map(|(e, m)| *e != 0 || *m != 0).collect()
+            },
         })
+    }
+
+    /// The skin-likelihood mask (DESIGN §6, "Mask"): a colour model of the face's skin,
+    /// estimated robustly from the pixels of `fp` (the start's footprint, eyes and mouth
+    /// left out): chroma (Cb, Cr) median and MAD-scaled spread, and the median luma. A
+    /// pixel is skin when its chroma lies within [`SKIN_SIGMAS`] spreads of the median
+    /// and its luma above a quarter of the median. Later footprints keep skin pixels
+    /// only (and eyes and mouth), so hair, hands, glasses and other occluders drop out of
+    /// the photometric term. Nothing changes when too few pixels remain to estimate from.
+    pub(crate) fn estimate_skin(&mut self, fp: &Footprint) {
+        let ycc = |c: DVec3| {
+            let y = 0.299 * c.x + 0.587 * c.y + 0.114 * c.z;
+            (y, 0.564 * (c.z - y), 0.713 * (c.x - y))
+        };
+        let samples: Vec<(f64, f64, f64)> = fp
+            .iter()
+            .filter(|(_, c)| !c.iter().all(|(v, _)| self.features.get(*v as usize).copied().unwrap_or(false)))
+            .map(|(pix, _)| ycc(self.colors[*pix]))
+            .collect();
+        if samples.len() < 100 {
+            return;
+        }
+        let median = |mut v: Vec<f64>| {
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        };
+        let (ym, cbm, crm) = (
+            median(samples.iter().map(|s| s.0).collect()),
+            median(samples.iter().map(|s| s.1).collect()),
+            median(samples.iter().map(|s| s.2).collect()),
+        );
+        // 1.4826·MAD estimates σ for a normal distribution; floored for flat synthetic skin.
+        let spread = |m: f64, f: fn(&(f64, f64, f64)) -> f64| {
+            (1.4826 * median(samples.iter().map(|s| (f(s) - m).abs()).collect())).max(0.01)
+        };
+        let (sb, sr) = (spread(cbm, |s| s.1), spread(crm, |s| s.2));
+        let skin = self
+            .colors
+            .iter()
+            .map(|&c| {
+                let (y, cb, cr) = ycc(c);
+                let (db, dr) = ((cb - cbm) / sb, (cr - crm) / sr);
+                db * db + dr * dr <= SKIN_SIGMAS * SKIN_SIGMAS && y >= 0.25 * ym
+            })
+            .collect();
+        self.skin = Some(skin);
     }
 
     /// Refuses positions that left the camera's view (a diverged step).
@@ -208,6 +269,11 @@ impl<'a> Target<'a> {
         let vb = cpu::rasterize(&job).map_err(|e| FitError::Diverged(format!("rendering: {e}")))?;
         let mut fp = interpolate::footprint(&vb, self.triangles);
         fp.retain(|(_, c)| c.iter().all(|(v, _)| self.region.get(*v as usize).is_some_and(|m| *m != 0)));
+        if let Some(skin) = &self.skin {
+            let feature =
+                |c: &[(u32, f64); 3]| c.iter().all(|(v, _)| self.features.get(*v as usize).copied().unwrap_or(false));
+            fp.retain(|(pix, c)| skin.get(*pix).copied().unwrap_or(false) || feature(c));
+        }
         if fp.is_empty() {
             return Err(FitError::Diverged("the face covers no pixel of the crop".into()));
         }
@@ -269,6 +335,9 @@ impl<'a> Target<'a> {
         loss
     }
 }
+
+/// How many robust spreads a skin pixel's chroma may lie from the face's median.
+pub const SKIN_SIGMAS: f64 = 3.0;
 
 /// The coefficients the coarse fit moves, as one vector: identity and expression, albedo,
 /// light (25×3, basis-major), rotation (axis-angle), translation (mm).
@@ -389,8 +458,13 @@ impl<'a> Objective<'a> {
         if start.layout() != model.layout() {
             return Err(FitError::Model("start coefficients do not match the model".into()));
         }
-        let objective = Self::new(model, crop, landmarks, landmark_vertices, settings)?;
+        let mut objective = Self::new(model, crop, landmarks, landmark_vertices, settings)?;
         let x = objective.layout.flatten(start);
+        if settings.skin_mask {
+            let points = objective.forward(&x)?.points;
+            let fp = objective.target.footprint(&points)?;
+            objective.target.estimate_skin(&fp);
+        }
         Ok((objective, x))
     }
 
@@ -547,4 +621,46 @@ pub fn fit_adam(
         losses,
         photometric_l1: last_l1,
     })
+}
+
+#[cfg(test)]
+mod skin_tests {
+    use super::*;
+
+    /// A crop of noisy skin with a blue occluder and dark hair inside the face's footprint:
+    /// the skin model, estimated from the whole footprint, keeps the skin and drops the rest.
+    #[test]
+    fn skin_mask_drops_occluders_and_keeps_skin() {
+        let model = facerecon_model::ict::load_default().unwrap();
+        let mut rng = 12345u64;
+        let mut noise = || {
+            rng = rng.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((rng >> 33) % 17) as f64 - 8.0
+        };
+        let crop = RgbImage::from_fn(224, 224, |x, y| {
+            let c = if (60..100).contains(&x) && (60..100).contains(&y) {
+                [40.0, 60.0, 200.0] // occluder
+            } else if y < 40 {
+                [25.0, 20.0, 15.0] // hair
+            } else {
+                [200.0, 150.0, 120.0] // skin
+            };
+            image::Rgb(c.map(|v| (v + noise()).clamp(0.0, 255.0) as u8))
+        });
+        let landmarks = vec![[112.0f32, 112.0]; 68];
+        let vertices: Vec<u32> = model.landmarks().to_vec();
+        let mut target = Target::new(&model, &crop, &landmarks, &vertices).unwrap();
+        // Every pixel covered by one triangle of plain skin vertices (no eyes, no mouth).
+        let v = (0..target.features.len()).find(|&v| !target.features[v]).unwrap() as u32;
+        let fp: Footprint = (0..224 * 224).map(|p| (p, [(v, 1.0), (v, 0.0), (v, 0.0)])).collect();
+        target.estimate_skin(&fp);
+        let skin = target.skin.as_ref().unwrap();
+        let at = |x: usize, y: usize| skin[y * 224 + x];
+        assert!(at(150, 150) && at(20, 200) && at(200, 60), "skin kept");
+        assert!(!at(80, 80) && !at(61, 99), "occluder dropped");
+        assert!(!at(100, 10) && !at(5, 39), "hair dropped");
+        let kept = skin.iter().filter(|s| **s).count() as f64 / skin.len() as f64;
+        let expected = 1.0 - (40.0 * 40.0 + 40.0 * 224.0) / (224.0 * 224.0);
+        assert!((kept - expected).abs() < 0.01, "kept {kept} of the crop, skin is {expected}");
+    }
 }

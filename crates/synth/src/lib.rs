@@ -11,6 +11,7 @@
 //! * [`rng`] — the seeded random streams (same seed → same bytes);
 //! * [`config`] — the ranges of a run; [`generator`] — one sample; [`output`] — files;
 //! * [`light`], [`expression`], [`pose`], [`background`], [`head`] — the parts of a draw;
+//! * [`occluder`] — occluders drawn over a rendered face (training data, robustness checks);
 //! * [`truth`] — the ground-truth record. (Coefficients → lit face mesh is
 //!   `facerecon_model::lit`.)
 
@@ -20,6 +21,7 @@ pub mod expression;
 pub mod generator;
 pub mod head;
 pub mod light;
+pub mod occluder;
 pub mod output;
 pub mod pose;
 pub mod rng;

@@ -9,7 +9,7 @@ use facerecon_nn::{CropBatch, NetworkConfig};
 use facerecon_synth::rng::Rng;
 use facerecon_synth::{Generator, SynthConfig};
 use facerecon_vision::crop::{Bucket, degrade_resolution};
-use image::{Rgb, RgbImage};
+use image::RgbImage;
 use rayon::prelude::*;
 
 use crate::TrainError;
@@ -79,7 +79,8 @@ impl<'m> SyntheticFaces<'m> {
                 let mut rng = Rng::for_sample(self.seed ^ 0xA5A5_5A5A, index);
                 let mut image = sample.image;
                 if rng.chance(self.augment.occluder) {
-                    occlude(&mut image, &mut rng);
+                    let area = [0.0, 0.0, image.width() as f64, image.height() as f64];
+                    facerecon_synth::occluder::occlude(&mut image, area, &mut rng);
                 }
                 let copy = (lowest_bucket > 0).then(|| {
                     let j = 1 + rng.below(lowest_bucket as u64) as usize;
@@ -133,29 +134,5 @@ impl<'m> SyntheticFaces<'m> {
             }
         }
         image
-    }
-}
-
-/// A hand, a microphone, hair, glasses' frames: a random rectangle or disc of flat or striped
-/// colour covering up to a quarter of the crop, anywhere (ground truth stays the face's).
-fn occlude(image: &mut RgbImage, rng: &mut Rng) {
-    let (w, h) = (image.width() as f64, image.height() as f64);
-    let (rw, rh) = (rng.range(0.1, 0.5) * w, rng.range(0.1, 0.5) * h);
-    let (x0, y0) = (rng.range(-0.1 * w, w - 0.4 * rw), rng.range(-0.1 * h, h - 0.4 * rh));
-    let base = [rng.below(256) as u8, rng.below(256) as u8, rng.below(256) as u8];
-    let stripes = rng.chance(0.5).then(|| rng.range(3.0, 12.0));
-    let disc = rng.chance(0.5);
-    for y in (y0.max(0.0) as u32)..((y0 + rh).min(h) as u32) {
-        for x in (x0.max(0.0) as u32)..((x0 + rw).min(w) as u32) {
-            let (u, v) = ((x as f64 - x0) / rw - 0.5, (y as f64 - y0) / rh - 0.5);
-            if disc && u * u + v * v > 0.25 {
-                continue;
-            }
-            let shade = match stripes {
-                Some(p) if (((x + y) as f64 / p) as u32).is_multiple_of(2) => 0.7,
-                _ => 1.0,
-            };
-            image.put_pixel(x, y, Rgb(base.map(|c| (c as f64 * shade) as u8)));
-        }
     }
 }
