@@ -12,7 +12,7 @@
 //!
 //!     cargo run --release -p facerecon-eval --example photometric_300w -- \
 //!         [--subset afw/ …] [--limit N] [--full [--smooth λ] [--magnitude λ] [--lr mm] [--iterations N]] \
-//!         [--encoder WEIGHTS] [--range λrange] [--no-skin-mask]
+//!         [--encoder WEIGHTS] [--range λrange] [--no-skin-mask] [--skin-sigmas K]
 
 use facerecon_eval::photometric::{Rgb, psnr, ssim};
 use facerecon_recon::{FaceSource, Options, Pipeline, Refine, Start, outputs};
@@ -27,6 +27,7 @@ fn main() {
     let mut encoder: Option<String> = None;
     let mut lambda_range: Option<f64> = None;
     let mut skin_mask = true;
+    let mut skin_sigmas: Option<f64> = None;
     let mut settings = facerecon_fit::displacement::DisplacementSettings::default();
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
@@ -48,6 +49,7 @@ fn main() {
             "--lr" => settings.learning_rate = num(),
             "--encoder" => encoder = Some(v.clone()),
             "--range" => lambda_range = Some(num()),
+            "--skin-sigmas" => skin_sigmas = Some(num()),
             "--iterations" => settings.iterations = v.parse().expect("number"),
             _ => panic!("unknown argument {a}"),
         }
@@ -59,6 +61,9 @@ fn main() {
     let mut pipeline = Pipeline::new(model.clone(), front).expect("pipeline");
     pipeline.displacement = settings;
     pipeline.photometric.skin_mask = skin_mask;
+    if let Some(k) = skin_sigmas {
+        pipeline.photometric.skin_sigmas = k;
+    }
     if let Some(l) = lambda_range {
         pipeline.photometric.lambda_range = l;
     }
@@ -122,7 +127,8 @@ fn main() {
                     out[1] = [p, q, n, f64::NAN];
                 }
                 let [p, q, n] = score(&r, face, fit)?;
-                out[slot(k)] = [p, q, n, seconds];
+                // The full level has its own slot (2); its coarse figure went to slot 1 above.
+                out[if refine == Refine::Full { 2 } else { slot(k) }] = [p, q, n, seconds];
                 if slot(k) == 1 {
                     // How much of the fitted albedo lies outside [0, 1] (what λrange acts on).
                     let a = model.albedo(&fit.coefficients.albedo, facerecon_model::Extent::Face).ok()?;

@@ -10,7 +10,7 @@
 //!     cargo run --release -p facerecon-eval --example synth_geometry -- [--per-bucket N] [--seed S] \
 //!         [--buckets 0,1,2,3] [--sigma S] [--lambda-id L] [--lambda-exp L] [--coarse [--iterations N]] \
 //!         [--full [--smooth λ] [--lr mm]] [--optimiser adam|lm] [--ph-lambda-id λ] [--ph-lambda-exp λ] \
-//!         [--encoder WEIGHTS] [--occlude] [--no-skin-mask]
+//!         [--encoder WEIGHTS] [--occlude] [--no-skin-mask] [--skin-sigmas K]
 //!
 //! `--coarse` adds the photometric fit started from the exact landmarks' landmark fit;
 //! `--full` the displacement map on it too (the coarse figure then comes from the same run).
@@ -148,6 +148,7 @@ fn main() {
             "--smooth" => displacement.lambda_smooth = v.parse().expect("number"),
             "--lr" => displacement.learning_rate = v.parse().expect("number"),
             "--encoder" => encoder = Some(v),
+            "--skin-sigmas" => photometric.skin_sigmas = v.parse().expect("number"),
             "--buckets" => buckets = v.split(',').map(|b| b.parse().expect("bucket 0-3")).collect(),
             _ => panic!("unknown argument {a}"),
         }

@@ -57,6 +57,8 @@ pub struct PhotometricSettings {
     /// Keep only skin-coloured pixels (and eyes and mouth) in the photometric term
     /// ([`Target::estimate_skin`]).
     pub skin_mask: bool,
+    /// How many robust spreads a skin pixel's chroma may lie from the face's median.
+    pub skin_sigmas: f64,
     /// σph of Eq. 3.5.
     pub sigma_ph: f64,
     pub iterations: usize,
@@ -84,6 +86,7 @@ impl Default for PhotometricSettings {
             lambda_tex: 1e-4,
             lambda_range: 1000.0,
             skin_mask: true,
+            skin_sigmas: 5.0,
             sigma_ph: 0.043,
             iterations: 45,
             time_budget: Duration::from_secs(10),
@@ -200,11 +203,11 @@ impl<'a> Target<'a> {
     /// The skin-likelihood mask (DESIGN §6, "Mask"): a colour model of the face's skin,
     /// estimated robustly from the pixels of `fp` (the start's footprint, eyes and mouth
     /// left out): chroma (Cb, Cr) median and MAD-scaled spread, and the median luma. A
-    /// pixel is skin when its chroma lies within [`SKIN_SIGMAS`] spreads of the median
+    /// pixel is skin when its chroma lies within `sigmas` spreads of the median
     /// and its luma above a quarter of the median. Later footprints keep skin pixels
     /// only (and eyes and mouth), so hair, hands, glasses and other occluders drop out of
     /// the photometric term. Nothing changes when too few pixels remain to estimate from.
-    pub(crate) fn estimate_skin(&mut self, fp: &Footprint) {
+    pub(crate) fn estimate_skin(&mut self, fp: &Footprint, sigmas: f64) {
         let ycc = |c: DVec3| {
             let y = 0.299 * c.x + 0.587 * c.y + 0.114 * c.z;
             (y, 0.564 * (c.z - y), 0.713 * (c.x - y))
@@ -237,7 +240,7 @@ impl<'a> Target<'a> {
             .map(|&c| {
                 let (y, cb, cr) = ycc(c);
                 let (db, dr) = ((cb - cbm) / sb, (cr - crm) / sr);
-                db * db + dr * dr <= SKIN_SIGMAS * SKIN_SIGMAS && y >= 0.25 * ym
+                db * db + dr * dr <= sigmas * sigmas && y >= 0.25 * ym
             })
             .collect();
         self.skin = Some(skin);
@@ -335,9 +338,6 @@ impl<'a> Target<'a> {
         loss
     }
 }
-
-/// How many robust spreads a skin pixel's chroma may lie from the face's median.
-pub const SKIN_SIGMAS: f64 = 3.0;
 
 /// The coefficients the coarse fit moves, as one vector: identity and expression, albedo,
 /// light (25×3, basis-major), rotation (axis-angle), translation (mm).
@@ -463,7 +463,7 @@ impl<'a> Objective<'a> {
         if settings.skin_mask {
             let points = objective.forward(&x)?.points;
             let fp = objective.target.footprint(&points)?;
-            objective.target.estimate_skin(&fp);
+            objective.target.estimate_skin(&fp, settings.skin_sigmas);
         }
         Ok((objective, x))
     }
@@ -653,7 +653,7 @@ mod skin_tests {
         // Every pixel covered by one triangle of plain skin vertices (no eyes, no mouth).
         let v = (0..target.features.len()).find(|&v| !target.features[v]).unwrap() as u32;
         let fp: Footprint = (0..224 * 224).map(|p| (p, [(v, 1.0), (v, 0.0), (v, 0.0)])).collect();
-        target.estimate_skin(&fp);
+        target.estimate_skin(&fp, 3.0);
         let skin = target.skin.as_ref().unwrap();
         let at = |x: usize, y: usize| skin[y * 224 + x];
         assert!(at(150, 150) && at(20, 200) && at(200, 60), "skin kept");
