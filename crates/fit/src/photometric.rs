@@ -200,6 +200,11 @@ impl<'a> Target<'a> {
         })
     }
 
+    /// Whether a footprint pixel's triangle lies on the eyes or mouth.
+    fn on_features(&self, corners: &[(u32, f64); 3]) -> bool {
+        corners.iter().all(|(v, _)| self.features.get(*v as usize).copied().unwrap_or(false))
+    }
+
     /// The skin-likelihood mask (DESIGN §6, "Mask"): a colour model of the face's skin,
     /// estimated robustly from the pixels of `fp` (the start's footprint, eyes and mouth
     /// left out): chroma (Cb, Cr) median and MAD-scaled spread, and the median luma. A
@@ -212,11 +217,8 @@ impl<'a> Target<'a> {
             let y = 0.299 * c.x + 0.587 * c.y + 0.114 * c.z;
             (y, 0.564 * (c.z - y), 0.713 * (c.x - y))
         };
-        let samples: Vec<(f64, f64, f64)> = fp
-            .iter()
-            .filter(|(_, c)| !c.iter().all(|(v, _)| self.features.get(*v as usize).copied().unwrap_or(false)))
-            .map(|(pix, _)| ycc(self.colors[*pix]))
-            .collect();
+        let samples: Vec<(f64, f64, f64)> =
+            fp.iter().filter(|(_, c)| !self.on_features(c)).map(|(pix, _)| ycc(self.colors[*pix])).collect();
         if samples.len() < 100 {
             return;
         }
@@ -273,9 +275,7 @@ impl<'a> Target<'a> {
         let mut fp = interpolate::footprint(&vb, self.triangles);
         fp.retain(|(_, c)| c.iter().all(|(v, _)| self.region.get(*v as usize).is_some_and(|m| *m != 0)));
         if let Some(skin) = &self.skin {
-            let feature =
-                |c: &[(u32, f64); 3]| c.iter().all(|(v, _)| self.features.get(*v as usize).copied().unwrap_or(false));
-            fp.retain(|(pix, c)| skin.get(*pix).copied().unwrap_or(false) || feature(c));
+            fp.retain(|(pix, c)| skin.get(*pix).copied().unwrap_or(false) || self.on_features(c));
         }
         if fp.is_empty() {
             return Err(FitError::Diverged("the face covers no pixel of the crop".into()));
