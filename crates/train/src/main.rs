@@ -57,6 +57,10 @@ struct Args {
     /// Log (and print) every this many steps (default: the preset's).
     #[arg(long)]
     log_every: Option<u64>,
+    /// Start a new run from these weights (an earlier run's encoder-f16.safetensors), at
+    /// the step stored in them; Adam's moments start again.
+    #[arg(long)]
+    init_weights: Option<PathBuf>,
     /// Print the summary as JSON on stdout.
     #[arg(long)]
     json: bool,
@@ -89,6 +93,7 @@ fn run(args: Args) -> anyhow::Result<()> {
     if let Some(n) = args.log_every {
         config.log_every = n;
     }
+    config.init_weights = args.init_weights.clone();
     if let Some(s) = args.seed {
         config.seed = s;
     }

@@ -53,6 +53,11 @@ pub struct TrainConfig {
     pub distinct_faces: Option<u64>,
     pub log_every: u64,
     pub checkpoint_every: u64,
+    /// Start from these weights, at the step stored in them, instead of from scratch: a run
+    /// continued from the fp16 weights an earlier run left (on a lent machine, the file that
+    /// comes back). Its optimizer state is not carried: Adam's moments start again.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub init_weights: Option<PathBuf>,
 }
 
 impl TrainConfig {
@@ -77,6 +82,7 @@ impl TrainConfig {
             distinct_faces: None,
             log_every: 10,
             checkpoint_every: 500,
+            init_weights: None,
         }
     }
 
@@ -113,6 +119,7 @@ impl TrainConfig {
         if self.log_every == 0 || self.checkpoint_every == 0 {
             return bad("log and checkpoint intervals must be ≥ 1".into());
         }
+
         Ok(())
     }
 
@@ -143,10 +150,10 @@ pub struct LogEntry {
     pub resolution: f64,
     /// RMS landmark error, crop pixels (a figure a person can read).
     pub landmark_rms_px: f64,
-    /// Wall time of the step.
+    /// Wall time per step, the mean since the previous logged step (on a GPU the steps in
+    /// between run asynchronously).
     pub seconds: f64,
-    /// The part of it spent waiting for the batch (rendering slower than training shows
-    /// here).
+    /// Time this step waited for its batch (rendering slower than training shows here).
     #[serde(default)]
     pub wait_seconds: f64,
 }
@@ -269,9 +276,32 @@ pub fn train_until(
     } else {
         write_json(&files.config(), config)?;
         let _ = std::fs::remove_file(files.log());
-        // The run's seed fixes the initial weights too (burn seeds per backend, globally).
-        autodiff.seed(config.seed);
-        (EncoderNet::new(&config.network, &autodiff), 0, None)
+        match &config.init_weights {
+            Some(path) => {
+                let bytes = std::fs::read(path).map_err(io(path))?;
+                let (network, net, meta) = weights::from_bytes_with_metadata(&bytes, &autodiff)?;
+                let step: u64 = meta.get("step").and_then(|s| s.parse().ok()).unwrap_or(0);
+                if network != config.network {
+                    return Err(TrainError::Config(format!(
+                        "{} holds another network than this run's",
+                        path.display()
+                    )));
+                }
+                if step >= config.steps {
+                    return Err(TrainError::Config(format!(
+                        "{} is at step {step}; the run ends at {}",
+                        path.display(),
+                        config.steps
+                    )));
+                }
+                (net, step, None)
+            }
+            None => {
+                // The run's seed fixes the initial weights too (burn seeds per backend, globally).
+                autodiff.seed(config.seed);
+                (EncoderNet::new(&config.network, &autodiff), 0, None)
+            }
+        }
     };
 
     let data = SyntheticFaces::new(model, &config.network, config.augment.clone(), config.seed)?;
@@ -299,6 +329,8 @@ pub fn train_until(
                 }
             }
         });
+        let mut interval = Instant::now();
+        let mut interval_start = start;
         for step in start..config.steps {
             let t0 = Instant::now();
             let batch = rx.recv().map_err(|_| TrainError::Data("the batch producer stopped".into()))??;
@@ -315,7 +347,7 @@ pub fn train_until(
             let lmk_sq = lmk_err.powf_scalar(2.0).sum_dim(2).mean();
             let landmarks = lmk_sq.clone() / 16.0;
             let mut total = coef.clone() + shape.clone() + landmarks.clone();
-            let mut resolution_value = 0.0;
+            let mut resolution = Tensor::<1>::zeros([1], &autodiff);
             if !batch.pairs.is_empty() {
                 let idx = |f: fn(&(usize, usize, f32)) -> i64| {
                     let v: Vec<i64> = batch.pairs.iter().map(f).collect();
@@ -325,39 +357,49 @@ pub fn train_until(
                 let low = pred.clone().select(0, idx(|p| p.1 as i64));
                 let w: Vec<f32> = batch.pairs.iter().map(|p| p.2).collect();
                 let w = Tensor::<2>::from_data(TensorData::new(w, [batch.pairs.len(), 1]), &autodiff);
-                let ls = (((low - high) / units.clone()).powf_scalar(2.0) * w).mean();
-                resolution_value = scalar(&ls);
-                total = total + ls * config.lambda_s;
+                resolution = (((low - high) / units.clone()).powf_scalar(2.0) * w).mean();
+                total = total + resolution.clone() * config.lambda_s;
             }
-            let entry = LogEntry {
-                step: step + 1,
-                lr: config.learning_rate(step),
-                total: scalar(&total),
-                coef: scalar(&coef),
-                shape: scalar(&shape),
-                landmarks: scalar(&landmarks),
-                resolution: resolution_value,
-                landmark_rms_px: scalar(&lmk_sq).sqrt(),
-                seconds: 0.0,
-                wait_seconds,
-            };
-            if !entry.total.is_finite() {
-                return Err(TrainError::Diverged { step: step + 1, loss: entry.total });
-            }
-            let grads = GradientsParams::from_grads(total.backward(), &net);
-            net = optimizer.step(entry.lr, net, grads);
-            let entry = LogEntry { seconds: t0.elapsed().as_secs_f64(), ..entry };
-
-            if (step + 1) % config.log_every == 0 || step + 1 == config.steps {
-                writeln!(log, "{}", serde_json::to_string(&entry).unwrap_or_default()).map_err(io(&files.log()))?;
-                progress(&entry);
-            }
-            if first.is_none() {
-                first = Some(entry.clone());
-            }
-            last = Some(entry);
             let stopping =
                 stop.after_step.is_some_and(|s| step + 1 >= s) || stop.after.is_some_and(|d| started.elapsed() >= d);
+            let logged = (step + 1) % config.log_every == 0 || step + 1 == config.steps || stopping || step == start;
+            // The loss terms are read back on logged steps only, all in one transfer: on a GPU
+            // every read-back waits for the queue to drain.
+            let terms = logged.then(|| Tensor::cat(vec![total.clone(), coef, shape, landmarks, resolution, lmk_sq], 0));
+            let lr = config.learning_rate(step);
+            let grads = GradientsParams::from_grads(total.backward(), &net);
+            net = optimizer.step(lr, net, grads);
+
+            if let Some(terms) = terms {
+                let v = terms.detach().into_data().convert::<f64>().try_into_vec::<f64>().unwrap_or_default();
+                let v = |i: usize| v.get(i).copied().unwrap_or(f64::NAN);
+                // The read-back waited for every queued step: time per step is the mean since
+                // the last logged one.
+                let seconds = interval.elapsed().as_secs_f64() / (step + 1 - interval_start) as f64;
+                interval = Instant::now();
+                interval_start = step + 1;
+                let entry = LogEntry {
+                    step: step + 1,
+                    lr,
+                    total: v(0),
+                    coef: v(1),
+                    shape: v(2),
+                    landmarks: v(3),
+                    resolution: v(4),
+                    landmark_rms_px: v(5).sqrt(),
+                    seconds,
+                    wait_seconds,
+                };
+                if !entry.total.is_finite() {
+                    return Err(TrainError::Diverged { step: step + 1, loss: entry.total });
+                }
+                writeln!(log, "{}", serde_json::to_string(&entry).unwrap_or_default()).map_err(io(&files.log()))?;
+                progress(&entry);
+                if first.is_none() {
+                    first = Some(entry.clone());
+                }
+                last = Some(entry);
+            }
             if (step + 1) % config.checkpoint_every == 0 || step + 1 == config.steps || stopping {
                 save_checkpoint(&files, &net, config, &optimizer, step + 1)?;
             }
@@ -369,21 +411,17 @@ pub fn train_until(
         Ok(net)
     })?;
 
-    let inference = net.valid();
-    weights::save(&inference, &config.network, Precision::F16, &files.weights())?;
+    // The released file carries its step, so a later run can continue from it (`init`).
+    let bytes = weights::to_bytes_with(
+        &net.valid(),
+        &config.network,
+        Precision::F16,
+        vec![("step".into(), steps_done.to_string())],
+    )?;
+    weights::write_atomically(&files.weights(), &bytes)?;
     let entries = read_log(&files.log())?;
     let plot = crate::plot::loss_plot(&entries, &files.plot()).ok().map(|_| files.plot());
     Ok(RunSummary { steps_done, resumed_from, first, last, weights: files.weights(), plot })
-}
-
-fn scalar(t: &Tensor<1>) -> f64 {
-    t.clone()
-        .into_data()
-        .convert::<f64>()
-        .try_into_vec::<f64>()
-        .ok()
-        .and_then(|v| v.first().copied())
-        .unwrap_or(f64::NAN)
 }
 
 fn save_checkpoint(

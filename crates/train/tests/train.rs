@@ -83,6 +83,8 @@ fn a_short_tiny_run_learns_and_a_resumed_run_matches_an_uninterrupted_one() {
     let stop = StopEarly { after_step: Some(12), after: None };
     let first_leg = train_until(model, &config, &split, &device, stop, |_| {}).unwrap();
     assert_eq!(first_leg.steps_done, 12);
+    let at12 = std::env::temp_dir().join(format!("facerecon-train-test-{}-at12.safetensors", std::process::id()));
+    std::fs::copy(&first_leg.weights, &at12).unwrap();
     let resumed = train(model, &config, &split, &device, |_| {}).unwrap();
     assert_eq!(resumed.resumed_from, Some(12));
     let log2 = read_log(&split.join("log.jsonl")).unwrap();
@@ -94,6 +96,20 @@ fn a_short_tiny_run_learns_and_a_resumed_run_matches_an_uninterrupted_one() {
     let other = TrainConfig { seed: 99, ..config.clone() };
     let e = train(model, &other, &split, &device, |_| {}).unwrap_err();
     assert!(e.to_string().contains("another configuration"), "{e}");
+
+    // A new run continued from the fp16 weights of step 12 (what a lent machine returns)
+    // starts at step 13 of the same schedule; its first loss, taken before any update, is
+    // the uninterrupted run's step-13 loss up to fp16 rounding.
+    let continued = tempdir("continued");
+    let config3 = TrainConfig { init_weights: Some(at12.clone()), steps: 14, ..config.clone() };
+    train(model, &config3, &continued, &device, |_| {}).unwrap();
+    let log3 = read_log(&continued.join("log.jsonl")).unwrap();
+    assert_eq!(log3.first().map(|e| e.step), Some(13));
+    assert_eq!(log3.first().map(|e| e.lr), Some(log[12].lr));
+    let (a, b) = (log[12].total, log3[0].total);
+    assert!((a - b).abs() <= 0.01 * a.abs(), "step 13: uninterrupted {a}, continued from fp16 {b}");
     let _ = std::fs::remove_dir_all(&whole);
     let _ = std::fs::remove_dir_all(&split);
+    let _ = std::fs::remove_dir_all(&continued);
+    let _ = std::fs::remove_file(&at12);
 }
