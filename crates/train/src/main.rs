@@ -61,6 +61,10 @@ struct Args {
     /// the step stored in them; Adam's moments start again.
     #[arg(long)]
     init_weights: Option<PathBuf>,
+    /// Only draw the loss plot of the run in `--out` from its log (a run trained on a
+    /// machine without fonts), and stop.
+    #[arg(long)]
+    plot_only: bool,
     /// Print the summary as JSON on stdout.
     #[arg(long)]
     json: bool,
@@ -77,6 +81,15 @@ fn main() -> ExitCode {
 }
 
 fn run(args: Args) -> anyhow::Result<()> {
+    if args.plot_only {
+        let log = args.out.join("log.jsonl");
+        let entries = facerecon_train::run::read_log(&log)?;
+        anyhow::ensure!(!entries.is_empty(), "{}: no log entries", log.display());
+        let png = args.out.join("loss.png");
+        facerecon_train::plot::loss_plot(&entries, &png)?;
+        eprintln!("loss plot of {} entries: {}", entries.len(), png.display());
+        return Ok(());
+    }
     let model: std::sync::Arc<MorphableModel> = match &args.model {
         Some(p) => {
             std::sync::Arc::new(MorphableModel::load(p).with_context(|| format!("loading model {}", p.display()))?)
