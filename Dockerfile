@@ -27,7 +27,11 @@ RUN apt-get update \
  && rm -rf /var/lib/apt/lists/* \
  && useradd --system --uid 10001 --no-create-home facerecon
 COPY --from=build /src/target/release/facerecon-server /src/target/release/facerecon /usr/local/bin/
+# The released encoder weights (weights/README.md). The server loads them when ONNX Runtime
+# is there (ORT_DYLIB_PATH); without it, it says so and serves the landmark start.
+COPY weights/*.safetensors /usr/local/share/facerecon/weights/
 ENV FACERECON_LISTEN=0.0.0.0:50051 \
+    FACERECON_WEIGHTS_DIR=/usr/local/share/facerecon/weights \
     FACERECON_METRICS_LISTEN=0.0.0.0:9464 \
     FACERECON_MODEL=/models/ict-face-light.safetensors \
     FACERECON_LOG_FORMAT=json \

@@ -21,9 +21,10 @@ pub struct Config {
     pub model: Option<PathBuf>,
     /// dlib 68-point shape predictor.
     pub landmark_model: PathBuf,
-    /// Encoder weights (`facerecon-train`'s `encoder-f16.safetensors`); `None`: no encoder,
-    /// requests start from the landmark fit.
-    pub encoder: Option<PathBuf>,
+    /// The encoder requests may start from: the weights released with this version (the
+    /// default, for the default model), a weights file (`facerecon-train`'s
+    /// `encoder-f16.safetensors`), or none (requests start from the landmark fit only).
+    pub encoder: EncoderChoice,
     /// Where the encoder runs: `cpu` (ONNX Runtime, the default) or `gpu` (burn's Vulkan
     /// backend; servers built with `--features gpu`, decision 0901).
     pub encoder_device: Compute,
@@ -56,6 +57,46 @@ pub struct Config {
     pub log_format: LogFormat,
 }
 
+/// Which encoder the server loads. Written `released`, `none`, or a path.
+#[derive(Clone, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(from = "String", into = "String")]
+pub enum EncoderChoice {
+    /// No encoder: START_ENCODER requests are answered UNIMPLEMENTED.
+    None,
+    /// [`facerecon_nn::released::path`], when the model is the default one (the weights are
+    /// trained for its coefficient layout) and the file is there.
+    #[default]
+    Released,
+    File(PathBuf),
+}
+
+impl From<String> for EncoderChoice {
+    fn from(s: String) -> Self {
+        match s.as_str() {
+            "none" | "" => EncoderChoice::None,
+            "released" => EncoderChoice::Released,
+            _ => EncoderChoice::File(PathBuf::from(s)),
+        }
+    }
+}
+
+impl From<EncoderChoice> for String {
+    fn from(c: EncoderChoice) -> String {
+        match c {
+            EncoderChoice::None => "none".into(),
+            EncoderChoice::Released => "released".into(),
+            EncoderChoice::File(p) => p.to_string_lossy().into_owned(),
+        }
+    }
+}
+
+impl std::str::FromStr for EncoderChoice {
+    type Err = std::convert::Infallible;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Ok(EncoderChoice::from(s.to_string()))
+    }
+}
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum LogFormat {
@@ -70,7 +111,7 @@ impl Default for Config {
             metrics_listen: Some(SocketAddr::from(([127, 0, 0, 1], 9464))),
             model: None,
             landmark_model: PathBuf::from(facerecon_vision::landmarks::DEFAULT_MODEL_PATH),
-            encoder: None,
+            encoder: EncoderChoice::Released,
             encoder_device: Compute::Cpu,
             max_batch_size: 16,
             max_queue_delay_ms: 0,
@@ -135,9 +176,10 @@ pub struct Args {
     /// dlib 68-point shape predictor [default: the shared folder's].
     #[arg(long, env = "FACERECON_LANDMARK_MODEL")]
     pub landmark_model: Option<PathBuf>,
-    /// Encoder weights; requests may then start from the encoder [default: none].
+    /// Encoder requests may start from: `released` (the weights released with this version,
+    /// for the default model), a weights file, or `none` [default: released].
     #[arg(long, env = "FACERECON_ENCODER")]
-    pub encoder: Option<PathBuf>,
+    pub encoder: Option<EncoderChoice>,
     /// Where the encoder runs: cpu (ONNX Runtime) or gpu (burn Vulkan; `--features gpu`)
     /// [default: cpu].
     #[arg(long, env = "FACERECON_ENCODER_DEVICE")]
@@ -193,9 +235,10 @@ impl Args {
         macro_rules! set_some {
             ($($f:ident),*) => { $( if let Some(v) = self.$f { c.$f = Some(v); } )* };
         }
-        set!(listen, landmark_model, encoder_device, max_batch_size, max_queue_delay_ms, queue_capacity, cpu_threads);
+        set!(listen, landmark_model, encoder, encoder_device, max_batch_size, max_queue_delay_ms, queue_capacity);
+        set!(cpu_threads);
         set!(max_message_bytes, max_image_pixels, max_faces, shutdown_grace_s, log_format);
-        set_some!(model, encoder, tls_cert, tls_key, auth_token);
+        set_some!(model, tls_cert, tls_key, auth_token);
         if let Some(m) = self.metrics_listen {
             c.metrics_listen = match m.as_str() {
                 "off" | "" => None,
@@ -234,6 +277,22 @@ mod tests {
         assert_eq!(c.max_batch_size, 8, "a flag wins over the file");
         assert_eq!(c.metrics_listen, None);
         assert_eq!(c.queue_capacity, Config::default().queue_capacity);
+    }
+
+    #[test]
+    fn the_encoder_is_released_none_or_a_file() {
+        assert_eq!(Config::default().encoder, EncoderChoice::Released);
+        let parse =
+            |flag: &str| Args::try_parse_from(["facerecon-server", "--encoder", flag]).unwrap().resolve().unwrap();
+        assert_eq!(parse("none").encoder, EncoderChoice::None);
+        assert_eq!(parse("released").encoder, EncoderChoice::Released);
+        assert_eq!(parse("runs/v2/w.safetensors").encoder, EncoderChoice::File("runs/v2/w.safetensors".into()));
+        let c: Config = toml::from_str("encoder = \"none\"").unwrap();
+        assert_eq!(c.encoder, EncoderChoice::None);
+        assert_eq!(
+            toml::to_string(&Config::default()).unwrap().lines().find(|l| l.starts_with("encoder =")),
+            Some("encoder = \"released\"")
+        );
     }
 
     /// The commented example file says the defaults.

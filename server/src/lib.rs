@@ -26,7 +26,7 @@ use tonic::Status;
 use tonic::transport::{Identity, Server, ServerTlsConfig};
 use tonic_health::ServingStatus;
 
-pub use config::Config;
+pub use config::{Config, EncoderChoice};
 use engine::{Engine, EngineSettings};
 use service::{Arrival, Service, State};
 
@@ -49,13 +49,38 @@ pub fn default_loader(config: &Config) -> Loader {
         };
         let front = facerecon_vision::pipeline::FrontEnd::load_standard(&config.landmark_model)?;
         let mut pipeline = Pipeline::new(model, front)?;
-        if let Some(w) = &config.encoder {
-            // ONNX Runtime's own threads for one batch; batches run one at a time.
-            let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-            let encoder = facerecon_nn::encoder::load(w, config.encoder_device, threads)
-                .with_context(|| format!("loading the encoder {} ({})", w.display(), config.encoder_device))?;
-            tracing::info!(weights = %w.display(), path = %encoder.describe(), "encoder loaded");
-            pipeline.set_encoder(encoder)?;
+        // ONNX Runtime's own threads for one batch; batches run one at a time.
+        let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let load = |w: &std::path::Path| {
+            facerecon_nn::encoder::load(w, config.encoder_device, threads)
+                .with_context(|| format!("loading the encoder {} ({})", w.display(), config.encoder_device))
+        };
+        match &config.encoder {
+            EncoderChoice::None => {}
+            EncoderChoice::File(w) => {
+                let encoder = load(w)?;
+                tracing::info!(weights = %w.display(), path = %encoder.describe(), "encoder loaded");
+                pipeline.set_encoder(encoder)?;
+            }
+            // The default: the released weights when they fit the model's coefficient
+            // layout. A server that cannot use them still serves the landmark start, and
+            // says why.
+            EncoderChoice::Released => {
+                let w = facerecon_nn::released::path();
+                let fits = facerecon_nn::weights::read_config(&w)
+                    .map(|c| c.layout == pipeline.model().layout())
+                    .map_err(anyhow::Error::from);
+                match fits.and_then(|fits| {
+                    anyhow::ensure!(fits, "the released weights are for another model's coefficients");
+                    let encoder = load(&w)?;
+                    let describe = encoder.describe();
+                    pipeline.set_encoder(encoder)?;
+                    Ok(describe)
+                }) {
+                    Ok(path) => tracing::info!(weights = %w.display(), %path, "released encoder loaded"),
+                    Err(e) => tracing::warn!(weights = %w.display(), "no encoder: {e:#}"),
+                }
+            }
         }
         pipeline.limits.max_pixels = config.max_image_pixels;
         pipeline.limits.max_encoded_bytes = pipeline.limits.max_encoded_bytes.min(config.max_message_bytes);

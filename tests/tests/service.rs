@@ -561,7 +561,7 @@ async fn the_encoder_start() {
     let path = std::env::temp_dir().join(format!("facerecon-service-encoder-{}.safetensors", std::process::id()));
     weights::save(&net, &net_config, Precision::F16, &path).unwrap();
 
-    let config = Config { encoder: Some(path.clone()), ..Config::default() };
+    let config = Config { encoder: facerecon_server::EncoderChoice::File(path.clone()), ..Config::default() };
     let s = TestServer::start_with(config.clone(), facerecon_server::default_loader(&config)).await;
     s.wait_serving(Duration::from_secs(120)).await;
     let c = client(&s).await;
@@ -623,4 +623,15 @@ async fn the_encoder_start() {
     assert_eq!(code(c.reconstruct(with(enc(pb::Refine::None), photo(0))).await), Code::Unimplemented);
     bare.stop().await.unwrap();
     let _ = std::fs::remove_file(&path);
+}
+
+/// By default the server loads the encoder released in `weights/` (the default model's), and
+/// `encoder = "none"` turns it off.
+#[test]
+fn the_default_server_loads_the_released_encoder() {
+    let with = facerecon_server::default_loader(&Config::default())().unwrap();
+    assert!(with.encoder().is_some(), "the released encoder must load by default");
+    let config = Config { encoder: facerecon_server::EncoderChoice::None, ..Config::default() };
+    let without = facerecon_server::default_loader(&config)().unwrap();
+    assert!(without.encoder().is_none());
 }

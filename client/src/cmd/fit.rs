@@ -34,7 +34,8 @@ pub struct FitArgs {
     /// Default: `landmarks`, or `none` with `--encoder`.
     #[arg(long, value_enum)]
     refine: Option<RefineArg>,
-    /// Start from the learned encoder of this weights file (`facerecon-train` writes
+    /// Start from the learned encoder: `released` (the weights released with this version,
+    /// for the default model), or a weights file (`facerecon-train` writes
     /// `encoder-f16.safetensors`).
     #[arg(long)]
     encoder: Option<PathBuf>,
@@ -92,6 +93,8 @@ pub fn run(args: FitArgs) -> anyhow::Result<ExitCode> {
     let front = FrontEnd::load_standard(&args.landmark_model)?;
     let mut pipeline = Pipeline::new(model, front)?;
     if let Some(w) = &args.encoder {
+        let released = facerecon_nn::released::path();
+        let w = if w.as_os_str() == "released" { &released } else { w };
         let encoder = facerecon_nn::encoder::load(w, args.encoder_device, 2)
             .with_context(|| format!("loading the encoder {} ({})", w.display(), args.encoder_device))?;
         pipeline.set_encoder(encoder)?;

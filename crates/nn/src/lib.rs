@@ -9,12 +9,14 @@
 //! * [`onnx`] — export of a network to an ONNX graph (our own writer, op for op).
 //! * [`encoder`] — the [`Encoder`] trait, [`CropBatch`], and the two inference paths:
 //!   [`BurnEncoder`] and [`OrtEncoder`] (ONNX Runtime, the CPU path).
+//! * [`released`] — where the weights released with this version are.
 
 pub mod compute;
 pub mod config;
 pub mod encoder;
 pub mod network;
 pub mod onnx;
+pub mod released;
 pub mod weights;
 
 pub use compute::Compute;

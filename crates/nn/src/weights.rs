@@ -142,6 +142,37 @@ pub fn load(path: &Path, device: &Device) -> Result<(NetworkConfig, EncoderNet),
     from_bytes(&std::fs::read(path).map_err(io)?, device)
 }
 
+/// The network configuration a weights file is for, from its header alone (the tensors are
+/// not read): what a caller checks before building anything.
+pub fn read_config(path: &Path) -> Result<NetworkConfig, NnError> {
+    use std::io::Read;
+    let io = |e: std::io::Error| NnError::Io { path: path.to_path_buf(), source: e };
+    let mut file = std::fs::File::open(path).map_err(io)?;
+    let mut len = [0u8; 8];
+    file.read_exact(&mut len).map_err(io)?;
+    let len = u64::from_le_bytes(len);
+    // A header is a few kilobytes; a larger claim is not a weights file.
+    if len > 1 << 20 {
+        return Err(NnError::Weights(format!("{}: a {len}-byte header", path.display())));
+    }
+    let mut header = vec![0u8; len as usize];
+    file.read_exact(&mut header).map_err(io)?;
+    let header: serde_json::Value =
+        serde_json::from_slice(&header).map_err(|e| NnError::Weights(format!("{}: header: {e}", path.display())))?;
+    let meta = &header["__metadata__"];
+    if meta["format"].as_str() != Some(WEIGHTS_FORMAT) {
+        return Err(NnError::Weights(format!(
+            "{}: format {:?}, expected {WEIGHTS_FORMAT:?}",
+            path.display(),
+            meta["format"]
+        )));
+    }
+    let config: NetworkConfig = serde_json::from_str(meta["config"].as_str().unwrap_or(""))
+        .map_err(|e| NnError::Weights(format!("{}: configuration: {e}", path.display())))?;
+    config.validate()?;
+    Ok(config)
+}
+
 /// [`load`] from bytes. A file with [`PARAM_IDS_KEY`] gives its parameters those ids back.
 pub fn from_bytes(bytes: &[u8], device: &Device) -> Result<(NetworkConfig, EncoderNet), NnError> {
     let (config, net, _) = from_bytes_with_metadata(bytes, device)?;

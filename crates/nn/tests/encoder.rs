@@ -160,6 +160,7 @@ fn weights_files_round_trip_in_fp32_exactly_and_in_fp16_closely() {
         weights::save(before.net(), &config, precision, &path).unwrap();
         let after = BurnEncoder::load(&path, device.clone()).unwrap();
         assert_eq!(after.config(), &config);
+        assert_eq!(weights::read_config(&path).unwrap(), config, "the header alone says the configuration");
         let got = after.encode_rows(&input).unwrap();
         let scale = reference.iter().flatten().fold(1.0f32, |m, v| m.max(v.abs()));
         let d = max_abs_diff(&got, &reference);
@@ -188,6 +189,20 @@ fn bad_weights_and_bad_crops_are_clear_errors() {
     other[8..8 + n].copy_from_slice(header.as_bytes());
     let e = weights::from_bytes(&other, &device).expect_err("must fail");
     assert!(e.to_string().contains("shape"), "{e}");
+    // The header-only reader refuses what is not a weights file, a huge header length
+    // included, without reading past the header.
+    let dir = std::env::temp_dir().join(format!("facerecon-nn-bad-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let huge = [u64::MAX.to_le_bytes().as_slice(), b"{}"].concat();
+    let foreign = safetensors::serialize(Vec::<(&str, safetensors::tensor::TensorView)>::new(), None).unwrap();
+    for (name, bad) in [("short", &b"abc"[..]), ("huge", &huge[..]), ("foreign", &foreign[..]), ("half", &bytes[..40])]
+    {
+        let p = dir.join(name);
+        std::fs::write(&p, bad).unwrap();
+        let e = weights::read_config(&p).expect_err(name);
+        assert!(matches!(e, NnError::Weights(_) | NnError::Io { .. }), "{name}: {e}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
 
     let enc = BurnEncoder::new(config.clone(), net, device);
     let mut wrong = CropBatch::new(config.input_size);
