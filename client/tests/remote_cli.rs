@@ -136,3 +136,44 @@ fn an_unreachable_server_is_a_clear_error() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("127.0.0.1:1"), "{err}");
 }
+
+/// `--start encoder` asks the server's learned encoder (here the released one, which the
+/// server loads by default); `--refine none` without it is refused before anything is sent.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn reconstruct_can_start_from_the_servers_encoder() {
+    let config = Config::default();
+    let s = TestServer::start_with(config.clone(), facerecon_server::default_loader(&config)).await;
+    s.wait_serving(std::time::Duration::from_secs(120)).await;
+    let pics = photos(1);
+    let out_dir = tmp("encoder");
+    let url = s.url();
+    let out = tokio::task::spawn_blocking({
+        let (pics, out_dir) = (pics.clone(), out_dir.clone());
+        move || {
+            let p: Vec<&Path> = pics.iter().map(|p| p.as_path()).collect();
+            facerecon(&["reconstruct", "--start", "encoder", "--server", &url, "-o", out_dir.to_str().unwrap()], &p)
+        }
+    })
+    .await
+    .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let record = sorted_files(&out_dir).into_iter().find(|f| f.ends_with("-face1.json")).expect("a face record");
+    let json: serde_json::Value = serde_json::from_slice(&std::fs::read(out_dir.join(record)).unwrap()).unwrap();
+    let text = json.to_string();
+    assert!(
+        text.contains("\"encoder\"") || text.contains("\"Encoder\""),
+        "the record must say it started from the encoder: {text:.300}"
+    );
+
+    let p: Vec<&Path> = pics.iter().map(|p| p.as_path()).collect();
+    let bad =
+        facerecon(&["reconstruct", "--refine", "none", "--server", &s.url(), "-o", out_dir.to_str().unwrap()], &p);
+    assert!(!bad.status.success());
+    assert!(
+        String::from_utf8_lossy(&bad.stderr).contains("--start encoder"),
+        "{}",
+        String::from_utf8_lossy(&bad.stderr)
+    );
+    s.stop().await.unwrap();
+    let _ = std::fs::remove_dir_all(&out_dir);
+}

@@ -159,6 +159,7 @@ pub fn run(args: BulkArgs) -> anyhow::Result<ExitCode> {
 }
 
 async fn run_async(args: BulkArgs) -> anyhow::Result<ExitCode> {
+    let options = args.request.options()?;
     let all = list_items(&args.input)?;
     let items: Vec<Item> = match args.shard {
         Some((i, n)) => all.into_iter().enumerate().filter(|(k, _)| k % n == i).map(|(_, it)| it).collect(),
@@ -193,7 +194,7 @@ async fn run_async(args: BulkArgs) -> anyhow::Result<ExitCode> {
         let feeder = {
             let (items, queue, in_flight, out) = (items.clone(), queue.clone(), in_flight.clone(), args.out.clone());
             let (read_errors, skipped, bar) = (read_errors.clone(), skipped.clone(), bar.clone());
-            let options = args.request.options();
+            let options = options.clone();
             tokio::spawn(async move {
                 loop {
                     let Some(k) = queue.lock().expect("queue lock").pop_front() else { return };

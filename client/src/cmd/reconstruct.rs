@@ -28,6 +28,7 @@ pub fn run(args: ReconstructArgs) -> anyhow::Result<ExitCode> {
 }
 
 async fn run_async(args: ReconstructArgs) -> anyhow::Result<ExitCode> {
+    let options = args.request.options()?;
     let client = remote::connect(&args.server, false).await?;
     let model =
         client.model().await.with_context(|| format!("asking {} for its model", args.server.server.join(", ")))?;
@@ -37,8 +38,7 @@ async fn run_async(args: ReconstructArgs) -> anyhow::Result<ExitCode> {
         let name = path.display().to_string();
         let result = async {
             let bytes = std::fs::read(path).context("cannot read file")?;
-            let answer =
-                client.reconstruct(Request::new(name.clone(), bytes).with_options(args.request.options())).await?;
+            let answer = client.reconstruct(Request::new(name.clone(), bytes).with_options(options.clone())).await?;
             let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "image".into());
             let (faces, fitted) = remote::write(&model, &answer, &args.out, &stem)?;
             println!("{name}: {faces} face(s), {fitted} fitted → {}", args.out.display());

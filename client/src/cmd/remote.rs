@@ -28,11 +28,17 @@ pub struct ServerArgs {
 
 #[derive(clap::Args, Clone)]
 pub struct RequestArgs {
+    /// Where each face's fit starts: `landmarks` (the landmark fit) or `encoder` (the
+    /// server's learned encoder, in one pass per batch; a server started without one
+    /// answers UNIMPLEMENTED).
+    #[arg(long, value_enum, default_value = "landmarks")]
+    pub start: StartArg,
     /// `landmarks` (milliseconds per face), `coarse` (the photometric fit, about a second)
     /// or `full` (then a displacement map, seconds; its 16-bit PNG is written beside the
-    /// record).
-    #[arg(long, value_enum, default_value = "landmarks")]
-    pub refine: RefineArg,
+    /// record); with `--start encoder`, `none` is the encoder's answer alone (and the
+    /// default).
+    #[arg(long, value_enum)]
+    pub refine: Option<RefineArg>,
     /// At most this many faces per photo (0: the server's default).
     #[arg(long, default_value_t = 0)]
     pub max_faces: u32,
@@ -44,17 +50,43 @@ pub struct RequestArgs {
     pub no_pictures: bool,
 }
 
-#[derive(Clone, Copy, clap::ValueEnum)]
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum StartArg {
+    Landmarks,
+    Encoder,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum RefineArg {
+    None,
     Landmarks,
     Coarse,
     Full,
 }
 
 impl RequestArgs {
-    pub fn options(&self) -> pb::Options {
-        pb::Options {
-            refine: match self.refine {
+    /// The request's options; a start and refinement that do not go together (refining
+    /// the encoder's answer by the landmark fit, or the landmark start unrefined) are an
+    /// error here, before any photo is sent.
+    pub fn options(&self) -> anyhow::Result<pb::Options> {
+        let refine = match (self.start, self.refine) {
+            (StartArg::Encoder, None) => RefineArg::None,
+            (StartArg::Landmarks, None) => RefineArg::Landmarks,
+            (StartArg::Encoder, Some(RefineArg::Landmarks)) => {
+                anyhow::bail!("--start encoder refines with none, coarse or full, not landmarks")
+            }
+            (StartArg::Landmarks, Some(RefineArg::None)) => {
+                anyhow::bail!("--refine none is the encoder alone: add --start encoder")
+            }
+            (_, Some(r)) => r,
+        };
+        Ok(pb::Options {
+            start: match self.start {
+                StartArg::Landmarks => pb::Start::Landmarks,
+                StartArg::Encoder => pb::Start::Encoder,
+            } as i32,
+            refine: match refine {
+                RefineArg::None => pb::Refine::None,
                 RefineArg::Landmarks => pb::Refine::Landmarks,
                 RefineArg::Coarse => pb::Refine::Coarse,
                 RefineArg::Full => pb::Refine::Full,
@@ -64,12 +96,12 @@ impl RequestArgs {
                 mesh_arrays: !self.no_meshes,
                 overlay: !self.no_pictures,
                 side_by_side: !self.no_pictures,
-                displacement_map: matches!(self.refine, RefineArg::Full),
+                displacement_map: refine == RefineArg::Full,
                 texture: !self.no_meshes,
                 ..Default::default()
             }),
             ..Default::default()
-        }
+        })
     }
 }
 
