@@ -12,7 +12,7 @@
 //!
 //!     cargo run --release -p facerecon-eval --example photometric_300w -- \
 //!         [--subset afw/ …] [--limit N] [--full [--smooth λ] [--magnitude λ] [--lr mm] [--iterations N]] \
-//!         [--encoder WEIGHTS] [--range λrange] [--no-skin-mask] [--skin-sigmas K]
+//!         [--encoder WEIGHTS] [--range λrange] [--no-skin-mask] [--map-skin-mask] [--skin-sigmas K]
 
 use facerecon_eval::photometric::{Rgb, psnr, ssim};
 use facerecon_recon::{FaceSource, Options, Pipeline, Refine, Start, outputs};
@@ -37,6 +37,10 @@ fn main() {
         }
         if a == "--no-skin-mask" {
             skin_mask = false;
+            continue;
+        }
+        if a == "--map-skin-mask" {
+            settings.skin_mask = true;
             continue;
         }
         let v = args.next().unwrap_or_else(|| panic!("{a} needs a value"));

@@ -10,12 +10,13 @@
 //!     cargo run --release -p facerecon-eval --example synth_geometry -- [--per-bucket N] [--seed S] \
 //!         [--buckets 0,1,2,3] [--sigma S] [--lambda-id L] [--lambda-exp L] [--coarse [--iterations N]] \
 //!         [--full [--smooth λ] [--lr mm]] [--optimiser adam|lm] [--ph-lambda-id λ] [--ph-lambda-exp λ] \
-//!         [--encoder WEIGHTS] [--occlude] [--no-skin-mask] [--skin-sigmas K]
+//!         [--encoder WEIGHTS] [--occlude] [--no-skin-mask] [--map-skin-mask] [--skin-sigmas K]
 //!
 //! `--coarse` adds the photometric fit started from the exact landmarks' landmark fit;
 //! `--full` the displacement map on it too (the coarse figure then comes from the same run).
 //! `--occlude` draws an occluder over each face (`facerecon_synth::occluder`: up to a quarter
-//! of its landmark box); `--no-skin-mask` turns the coarse fit's skin mask off.
+//! of its landmark box); `--no-skin-mask` turns the coarse fit's skin mask off,
+//! `--map-skin-mask` turns the displacement stage's on.
 //! `--encoder W` adds the learned encoder (ONNX Runtime, weights file W) on the same crop
 //! (from the exact landmarks): alone, and refined by the coarse fit, with seconds per face.
 
@@ -122,6 +123,10 @@ fn main() {
         }
         if a == "--no-skin-mask" {
             photometric.skin_mask = false;
+            continue;
+        }
+        if a == "--map-skin-mask" {
+            displacement.skin_mask = true;
             continue;
         }
         let v = args.next().unwrap_or_else(|| panic!("{a} needs a value"));

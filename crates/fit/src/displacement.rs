@@ -42,6 +42,13 @@ pub struct DisplacementSettings {
     pub raster_every: usize,
     /// Adam step size, mm.
     pub learning_rate: f64,
+    /// Keep only skin-coloured pixels (and eyes and mouth) in the photometric term, as the
+    /// coarse fit does ([`crate::photometric::PhotometricSettings::skin_mask`]), with the
+    /// colour model estimated from the coarse surface's footprint. Off by default: on
+    /// occluded synthetic faces it changed no geometry figure, and on photos it cost
+    /// 0.18 dB (decision 0702).
+    pub skin_mask: bool,
+    pub skin_sigmas: f64,
 }
 
 impl Default for DisplacementSettings {
@@ -57,6 +64,8 @@ impl Default for DisplacementSettings {
             time_budget: Duration::from_secs(12),
             raster_every: 4,
             learning_rate: 0.02,
+            skin_mask: false,
+            skin_sigmas: 5.0,
         }
     }
 }
@@ -87,7 +96,7 @@ pub fn fit(
     if coefficients.layout() != model.layout() {
         return Err(FitError::Model("coefficients do not match the model".into()));
     }
-    let target = Target::new(model, crop, landmarks, landmark_vertices)?;
+    let mut target = Target::new(model, crop, landmarks, landmark_vertices)?;
     let mut map = DisplacementMap::zeros(settings.size).map_err(FitError::Evaluate)?;
     let nv = model.extent_vertices(Extent::Face);
     let tris = target.triangles;
@@ -100,6 +109,10 @@ pub fn fit(
     let light: shading::Light = coefficients.light.map(|c| c.map(|x| x as f64));
     let base = pose::forward(&Linear::Shape.forward_fast(model, &ws).map_err(FitError::Evaluate)?, q, t);
     target.check_positions(&base)?;
+    if settings.skin_mask {
+        let fp = target.footprint(&base)?;
+        target.estimate_skin(&fp, settings.skin_sigmas);
+    }
     let base_normals = normals::forward(&base, tris);
     let albedo = Linear::Albedo.forward_fast(model, &wa).map_err(FitError::Evaluate)?;
     let taps = displace::taps(&map, &model.vertex_uvs()[..nv]);
