@@ -63,8 +63,9 @@ pub struct Config {
 pub enum EncoderChoice {
     /// No encoder: START_ENCODER requests are answered UNIMPLEMENTED.
     None,
-    /// [`facerecon_nn::released::path`], when the model is the default one (the weights are
-    /// trained for its coefficient layout) and the file is there.
+    /// [`facerecon_nn::released::path`], when the file is there, ONNX Runtime (or the GPU
+    /// backend) loads, and its coefficient layout is the model's (it was trained for the
+    /// default model); otherwise the server logs why and serves without an encoder.
     #[default]
     Released,
     File(PathBuf),

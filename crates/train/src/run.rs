@@ -119,7 +119,6 @@ impl TrainConfig {
         if self.log_every == 0 || self.checkpoint_every == 0 {
             return bad("log and checkpoint intervals must be ≥ 1".into());
         }
-
         Ok(())
     }
 
@@ -411,7 +410,7 @@ pub fn train_until(
         Ok(net)
     })?;
 
-    // The released file carries its step, so a later run can continue from it (`init`).
+    // The released file carries its step, so a later run can continue from it (`init_weights`).
     let bytes = weights::to_bytes_with(
         &net.valid(),
         &config.network,
