@@ -34,6 +34,11 @@ pub struct SynthConfig {
     /// these by bicubic down/up-sampling (DESIGN §7).
     #[serde(default)]
     pub crop_frame: Option<u32>,
+    /// `Some(y)`: every face at yaw `y` degrees instead of a drawn one (a pose sweep). Every
+    /// other draw is unchanged, so sample `i` is the same face, lit and placed the same, at
+    /// each yaw.
+    #[serde(default)]
+    pub yaw_deg: Option<f32>,
 }
 
 impl Default for SynthConfig {
@@ -49,6 +54,7 @@ impl Default for SynthConfig {
             roll_sd_deg: 8.0,
             roll_max_deg: 30.0,
             crop_frame: None,
+            yaw_deg: None,
         }
     }
 }
@@ -71,6 +77,11 @@ impl SynthConfig {
             && !(32..=1024).contains(&s)
         {
             return bad(format!("crop frame {s} px outside 32..=1024"));
+        }
+        if let Some(y) = self.yaw_deg
+            && !(y.abs() <= 90.0)
+        {
+            return bad(format!("yaw {y}° outside [−90, 90]"));
         }
         if !(64..=8192).contains(&self.max_image_side) {
             return bad(format!("max image side {} outside 64..=8192", self.max_image_side));

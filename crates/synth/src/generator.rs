@@ -84,8 +84,9 @@ impl<'m> Generator<'m> {
         };
         let albedo = gaussian(&mut rng, meta.albedo.count);
         let light = random_light(&mut rng);
+        let drawn_yaw = rng.range(-cfg.yaw_max_deg as f64, cfg.yaw_max_deg as f64) as f32;
         let euler = Euler {
-            yaw_deg: rng.range(-cfg.yaw_max_deg as f64, cfg.yaw_max_deg as f64) as f32,
+            yaw_deg: cfg.yaw_deg.unwrap_or(drawn_yaw),
             pitch_deg: rng.normal_clamped(cfg.pitch_sd_deg as f64, cfg.pitch_max_deg as f64) as f32,
             roll_deg: rng.normal_clamped(cfg.roll_sd_deg as f64, cfg.roll_max_deg as f64) as f32,
         };

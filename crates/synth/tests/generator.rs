@@ -252,3 +252,21 @@ fn tempdir(name: &str) -> std::path::PathBuf {
     std::fs::remove_dir_all(&d).ok();
     d
 }
+
+#[test]
+fn a_fixed_yaw_renders_the_same_face_at_each_pose() {
+    let model = model();
+    let at = |yaw: f32| {
+        let c = SynthConfig { crop_frame: Some(128), yaw_deg: Some(yaw), ..SynthConfig::default() };
+        Generator::new(&model, c).unwrap().sample(9, 2).unwrap().truth
+    };
+    let (front, side) = (at(0.0), at(45.0));
+    assert_eq!(front.euler.yaw_deg, 0.0);
+    assert_eq!(side.euler.yaw_deg, 45.0);
+    assert_eq!(front.coefficients.identity, side.coefficients.identity);
+    assert_eq!(front.coefficients.expression, side.coefficients.expression);
+    assert_eq!(front.coefficients.albedo, side.coefficients.albedo);
+    assert_ne!(front.coefficients.rotation, side.coefficients.rotation);
+    let bad = SynthConfig { yaw_deg: Some(120.0), ..SynthConfig::default() };
+    assert!(Generator::new(&model, bad).is_err());
+}
