@@ -7,7 +7,8 @@
 #
 # The face model is mounted, not baked in: `scripts/setup` builds
 # models/ict-face-light.safetensors from ICT-FaceKit; FACERECON_MODEL names it. The face
-# detector (opencv-data) and the 68-point landmark model (libdlib-data) come from Debian.
+# detector (opencv-data) and the 68-point landmark model (libdlib-data) come from Debian;
+# the released encoder weights (weights/) and ONNX Runtime (PyPI's wheel) are baked in.
 # scripts/docker-check builds this image, serves a request from it and stops it.
 
 FROM rust:1.95-bookworm AS build
@@ -16,6 +17,14 @@ RUN apt-get update \
  && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends libturbojpeg0-dev pkg-config \
  && rm -rf /var/lib/apt/lists/*
 WORKDIR /src
+# ONNX Runtime's C library (the encoder's CPU path and the ONNX plug-ins load it at run
+# time), taken from PyPI's onnxruntime wheel as on a host.
+RUN apt-get update \
+ && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends python3-pip \
+ && rm -rf /var/lib/apt/lists/*
+COPY scripts/install-onnxruntime scripts/
+RUN FACERECON_ORT_HOME=/opt/onnxruntime scripts/install-onnxruntime >/dev/null \
+ && cp -L /opt/onnxruntime/libonnxruntime.so /opt/libonnxruntime.so
 COPY . .
 RUN cargo build --release --locked -p facerecon-server -p facerecon-client \
  && strip target/release/facerecon-server target/release/facerecon
@@ -27,11 +36,13 @@ RUN apt-get update \
  && rm -rf /var/lib/apt/lists/* \
  && useradd --system --uid 10001 --no-create-home facerecon
 COPY --from=build /src/target/release/facerecon-server /src/target/release/facerecon /usr/local/bin/
-# The released encoder weights (weights/README.md). The server loads them when ONNX Runtime
-# is there (ORT_DYLIB_PATH); without it, it says so and serves the landmark start.
+# The released encoder weights (weights/README.md), which the server loads by default, and
+# ONNX Runtime, which runs them on the CPU.
 COPY weights/*.safetensors /usr/local/share/facerecon/weights/
+COPY --from=build /opt/libonnxruntime.so /usr/local/lib/facerecon/libonnxruntime.so
 ENV FACERECON_LISTEN=0.0.0.0:50051 \
     FACERECON_WEIGHTS_DIR=/usr/local/share/facerecon/weights \
+    ORT_DYLIB_PATH=/usr/local/lib/facerecon/libonnxruntime.so \
     FACERECON_METRICS_LISTEN=0.0.0.0:9464 \
     FACERECON_MODEL=/models/ict-face-light.safetensors \
     FACERECON_LOG_FORMAT=json \

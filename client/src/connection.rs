@@ -119,11 +119,16 @@ fn local_deadline(s: tonic::Status) -> tonic::Status {
     }
 }
 
-/// UNAVAILABLE, and a connection broken before any answer (tonic reports that as UNKNOWN
-/// "transport error": e.g. a container's port proxy accepting before the server listens).
+/// UNAVAILABLE, and a connection broken before any answer: tonic reports that as UNKNOWN
+/// "transport error", or as CANCELLED "operation was canceled" when the connection closes
+/// under a request it has not answered (e.g. a container's port proxy accepting before the
+/// server listens). A deadline's own expiry, also CANCELLED, is not retried.
 fn retriable(s: &tonic::Status) -> bool {
     s.code() == tonic::Code::Unavailable
         || (s.code() == tonic::Code::Unknown && s.message().contains("transport error"))
+        || (s.code() == tonic::Code::Cancelled
+            && s.message().contains("operation was canceled")
+            && !s.message().contains("Timeout expired"))
 }
 
 #[derive(Clone)]
@@ -370,5 +375,22 @@ impl Client {
             }
             Err(s) => Err(ClientError::Status(local_deadline(s))),
         }))
+    }
+}
+
+#[cfg(test)]
+mod retry_tests {
+    use super::*;
+
+    #[test]
+    fn broken_connections_are_retried_and_callers_mistakes_and_deadlines_are_not() {
+        use tonic::{Code, Status};
+        // As tonic words them (seen against a container whose server was still starting).
+        assert!(retriable(&Status::new(Code::Cancelled, "The operation was cancelled: operation was canceled")));
+        assert!(retriable(&Status::new(Code::Unknown, "transport error")));
+        assert!(retriable(&Status::unavailable("connection refused")));
+        assert!(!retriable(&Status::new(Code::Cancelled, "Timeout expired")));
+        assert!(!retriable(&Status::invalid_argument("not an image")));
+        assert!(!retriable(&Status::new(Code::Cancelled, "the caller went away")));
     }
 }
