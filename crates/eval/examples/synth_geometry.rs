@@ -21,8 +21,7 @@
 //! (from the exact landmarks): alone, and refined by the coarse fit, with seconds per face.
 
 use facerecon_eval::align::Metric;
-use facerecon_eval::geometry::{self, ErrorStats, GeometryCase};
-use facerecon_model::scene::vertex_normals;
+use facerecon_eval::geometry::ErrorStats;
 use facerecon_model::{Coefficients, DisplacementMap, Extent, MorphableModel};
 use facerecon_recon::{FaceSource, Options, Pipeline, Refine, Start};
 use facerecon_synth::{Generator, SynthConfig};
@@ -31,27 +30,8 @@ use facerecon_vision::pipeline::FrontEnd;
 use glam::DVec3;
 use rayon::prelude::*;
 
-const ICP_ITERATIONS: usize = 30;
-
-/// Model-space face-area points and normals of `identity` and `expression`, moved along the
-/// normals by `map` when given (the map is pose-free: offsets along the normal).
-fn shape(
-    model: &MorphableModel,
-    identity: &[f32],
-    expression: &[f32],
-    map: Option<&DisplacementMap>,
-) -> (Vec<DVec3>, Vec<DVec3>) {
-    let mut p = model.shape(identity, expression, Extent::Face).expect("shape");
-    let tris = model.extent_triangles(Extent::Face);
-    let mut n = vertex_normals(&p, tris);
-    if let Some(map) = map {
-        let uvs = &model.vertex_uvs()[..p.len()];
-        map.displace(&mut p, &n, uvs);
-        n = vertex_normals(&p, tris);
-    }
-    let d = |v: &[[f32; 3]]| v.iter().map(|x| glam::Vec3::from(*x).as_dvec3()).collect::<Vec<_>>();
-    (d(&p), d(&n))
-}
+mod shape_error;
+use shape_error::{ICP_ITERATIONS, shape};
 
 /// Per-face mean error (mm) of `pred` against `truth`, both model space: point-to-plane,
 /// then point-to-point.
@@ -61,18 +41,8 @@ fn errors(
     map: Option<&DisplacementMap>,
     truth: &(Vec<DVec3>, Vec<DVec3>),
 ) -> [f64; 2] {
-    let (p, pn) = shape(model, &pred.identity, &pred.expression, map);
-    let lm = model.landmarks();
-    let pairs: Vec<(usize, usize)> = lm.iter().map(|&i| (i as usize, i as usize)).collect();
-    let case = GeometryCase {
-        predicted: &p,
-        predicted_normals: &pn,
-        truth: &truth.0,
-        nose_tip: truth.0[lm[30] as usize],
-        start_pairs: &pairs,
-    };
-    [Metric::PointToPlane, Metric::PointToPoint]
-        .map(|m| geometry::geometry_error(&case, m, ICP_ITERATIONS).expect("crop not empty").mean)
+    let p = shape(model, &pred.identity, &pred.expression, map);
+    [Metric::PointToPlane, Metric::PointToPoint].map(|m| shape_error::error(model, &p, truth, m))
 }
 
 #[derive(Default, Clone)]

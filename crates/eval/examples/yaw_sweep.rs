@@ -23,8 +23,8 @@
 //! ```
 
 use facerecon_eval::align::Metric;
-use facerecon_eval::geometry::{self, GeometryCase};
-use facerecon_model::{Coefficients, Extent, MorphableModel, scene::vertex_normals};
+
+use facerecon_model::{Coefficients, MorphableModel};
 use facerecon_recon::{FaceSource, Options, Pipeline, Refine, Start};
 use facerecon_synth::{Generator, SynthConfig};
 use facerecon_vision::pipeline::FrontEnd;
@@ -36,25 +36,14 @@ const BINS: usize = 12;
 /// One method's answer for one face: its coefficients and their geometry error (mm).
 type Answer = Option<(Coefficients, f64)>;
 
-fn shape(model: &MorphableModel, c: &Coefficients) -> (Vec<DVec3>, Vec<DVec3>) {
-    let p = model.shape(&c.identity, &c.expression, Extent::Face).expect("shape");
-    let n = vertex_normals(&p, model.extent_triangles(Extent::Face));
-    let d = |v: &[[f32; 3]]| v.iter().map(|x| glam::Vec3::from(*x).as_dvec3()).collect::<Vec<_>>();
-    (d(&p), d(&n))
+mod shape_error;
+
+fn truth_shape(model: &MorphableModel, c: &Coefficients) -> (Vec<DVec3>, Vec<DVec3>) {
+    shape_error::shape(model, &c.identity, &c.expression, None)
 }
 
 fn geometry_error(model: &MorphableModel, pred: &Coefficients, truth: &(Vec<DVec3>, Vec<DVec3>)) -> f64 {
-    let (p, pn) = shape(model, pred);
-    let lm = model.landmarks();
-    let pairs: Vec<(usize, usize)> = lm.iter().map(|&i| (i as usize, i as usize)).collect();
-    let case = GeometryCase {
-        predicted: &p,
-        predicted_normals: &pn,
-        truth: &truth.0,
-        nose_tip: truth.0[lm[30] as usize],
-        start_pairs: &pairs,
-    };
-    geometry::geometry_error(&case, Metric::PointToPlane, 30).expect("crop not empty").mean
+    shape_error::error(model, &truth_shape(model, pred), truth, Metric::PointToPlane)
 }
 
 /// Add-one-smoothed histogram of `values` over [−3, 3].
@@ -136,7 +125,7 @@ fn main() {
             .into_par_iter()
             .map(|i| {
                 let s = generator.sample(seed, i).expect("sample");
-                let truth = shape(&model, &s.truth.coefficients);
+                let truth = truth_shape(&model, &s.truth.coefficients);
                 let exact: Vec<[f32; 2]> = s.truth.landmarks.iter().map(|l| l.xy).collect();
                 methods
                     .iter()
