@@ -160,16 +160,19 @@ pub fn read_config(path: &Path) -> Result<NetworkConfig, NnError> {
     let header: serde_json::Value =
         serde_json::from_slice(&header).map_err(|e| NnError::Weights(format!("{}: header: {e}", path.display())))?;
     let meta = &header["__metadata__"];
-    if meta["format"].as_str() != Some(WEIGHTS_FORMAT) {
-        return Err(NnError::Weights(format!(
-            "{}: format {:?}, expected {WEIGHTS_FORMAT:?}",
-            path.display(),
-            meta["format"]
-        )));
+    config_of(meta["format"].as_str(), meta["config"].as_str())
+        .map_err(|e| NnError::Weights(format!("{}: {e}", path.display())))
+}
+
+/// The configuration a header's metadata names, after checking its format: what every
+/// reader of a weights file starts with.
+fn config_of(format: Option<&str>, config: Option<&str>) -> Result<NetworkConfig, String> {
+    if format != Some(WEIGHTS_FORMAT) {
+        return Err(format!("format {format:?}, expected {WEIGHTS_FORMAT:?}"));
     }
-    let config: NetworkConfig = serde_json::from_str(meta["config"].as_str().unwrap_or(""))
-        .map_err(|e| NnError::Weights(format!("{}: configuration: {e}", path.display())))?;
-    config.validate()?;
+    let config: NetworkConfig =
+        serde_json::from_str(config.unwrap_or("")).map_err(|e| format!("configuration: {e}"))?;
+    config.validate().map_err(|e| e.to_string())?;
     Ok(config)
 }
 
@@ -187,13 +190,8 @@ pub fn from_bytes_with_metadata(
     let bad = |m: String| NnError::Weights(m);
     let (_, header) = SafeTensors::read_metadata(bytes).map_err(|e| bad(format!("not a safetensors file: {e}")))?;
     let meta = header.metadata().clone().unwrap_or_default();
-    match meta.get("format") {
-        Some(f) if f == WEIGHTS_FORMAT => {}
-        other => return Err(bad(format!("format {other:?}, expected {WEIGHTS_FORMAT:?}"))),
-    }
-    let config: NetworkConfig = serde_json::from_str(meta.get("config").map(String::as_str).unwrap_or(""))
-        .map_err(|e| bad(format!("configuration: {e}")))?;
-    config.validate()?;
+    let config =
+        config_of(meta.get("format").map(String::as_str), meta.get("config").map(String::as_str)).map_err(bad)?;
     // A small file must not make us build a large network: the tensors it holds must be
     // able to fill the configured one before anything is allocated.
     let stored_values = header
