@@ -392,12 +392,16 @@ pub struct Camera {
     pub aspect: f32,
     pub near: f32,
     pub far: f32,
+    /// Where the optical axis meets the image, NDC (lens shift; `[0, 0]`: the image centre).
+    /// A window cut out of a larger image (a face's crop of a photo) sees the photo's camera
+    /// off-axis: same focal length in its own pixels, principal point moved.
+    pub center: [f32; 2],
 }
 
 impl Default for Camera {
-    /// fov 30°, aspect 1, near 1 mm, far 1000 mm (DESIGN §4).
+    /// fov 30°, aspect 1, near 1 mm, far 1000 mm, on-axis (DESIGN §4).
     fn default() -> Self {
-        Self { fov_y: FOV_Y_DEG.to_radians(), aspect: 1.0, near: NEAR_MM, far: FAR_MM }
+        Self { fov_y: FOV_Y_DEG.to_radians(), aspect: 1.0, near: NEAR_MM, far: FAR_MM, center: [0.0, 0.0] }
     }
 }
 
@@ -407,13 +411,15 @@ impl Camera {
         1.0 / (0.5 * self.fov_y).tan()
     }
 
-    /// The projection matrix of Eq. 2.22 (OpenGL convention: NDC z ∈ [−1, 1], −1 at near).
+    /// The projection matrix of Eq. 2.22 (OpenGL convention: NDC z ∈ [−1, 1], −1 at near),
+    /// with the lens shift [`Self::center`] (`x_ndc = f/a·X/w + cx`).
     pub fn projection_gl(&self) -> Mat4 {
         let (f, a, n, fa) = (self.focal(), self.aspect, self.near, self.far);
+        let [cx, cy] = self.center;
         Mat4::from_cols(
             Vec4::new(f / a, 0.0, 0.0, 0.0),
             Vec4::new(0.0, f, 0.0, 0.0),
-            Vec4::new(0.0, 0.0, (fa + n) / (n - fa), -1.0),
+            Vec4::new(-cx, -cy, (fa + n) / (n - fa), -1.0),
             Vec4::new(0.0, 0.0, 2.0 * fa * n / (n - fa), 0.0),
         )
     }
@@ -422,10 +428,11 @@ impl Camera {
     /// renderer (Vulkan/wgpu). x, y and w are identical to [`Self::projection_gl`].
     pub fn projection_zo(&self) -> Mat4 {
         let (f, a, n, fa) = (self.focal(), self.aspect, self.near, self.far);
+        let [cx, cy] = self.center;
         Mat4::from_cols(
             Vec4::new(f / a, 0.0, 0.0, 0.0),
             Vec4::new(0.0, f, 0.0, 0.0),
-            Vec4::new(0.0, 0.0, fa / (n - fa), -1.0),
+            Vec4::new(-cx, -cy, fa / (n - fa), -1.0),
             Vec4::new(0.0, 0.0, fa * n / (n - fa), 0.0),
         )
     }
@@ -444,8 +451,8 @@ impl Camera {
         }
         let w = -p[2];
         let f = self.focal();
-        let x_ndc = f / self.aspect * p[0] / w;
-        let y_ndc = f * p[1] / w;
+        let x_ndc = f / self.aspect * p[0] / w + self.center[0];
+        let y_ndc = f * p[1] / w + self.center[1];
         Some(ndc_to_pixel([x_ndc, y_ndc], width, height))
     }
 }

@@ -56,7 +56,7 @@ impl RenderJob<'_> {
             && c.aspect > 0.0
             && c.near > 0.0
             && c.far > c.near
-            && [c.fov_y, c.aspect, c.near, c.far].iter().all(|v| v.is_finite());
+            && [c.fov_y, c.aspect, c.near, c.far, c.center[0], c.center[1]].iter().all(|v| v.is_finite());
         if !ok {
             return bad(format!("invalid camera {c:?}"));
         }

@@ -190,3 +190,35 @@ fn overlay_blends_only_inside_the_mask() {
         }
     }
 }
+
+#[test]
+fn a_lens_shift_moves_the_picture_by_whole_pixels() {
+    // The dome seen on-axis, then with the principal point moved 4 px right and 3 px up:
+    // the same picture, moved by exactly that (a window of a larger photo sees it so).
+    let scene = dome(24, 1.05, 3);
+    let (w, h) = (64u32, 64u32);
+    let base = scene.job(w, h);
+    let shifted =
+        RenderJob { camera: Camera { center: [2.0 * 4.0 / w as f32, 2.0 * 3.0 / h as f32], ..base.camera }, ..base };
+    let (a, b) = (cpu::rasterize(&base).unwrap(), cpu::rasterize(&shifted).unwrap());
+    let o = oracle(&shifted);
+    let (bad, max_bary, _) = compare(&shifted, &o, &b, 1e-6, 1e-9);
+    assert!(bad.is_empty() && max_bary < 1e-5, "shifted render vs oracle: {} pixels, {max_bary}", bad.len());
+    let (mut same, mut moved) = (0, 0);
+    for y in 3..h {
+        for x in 0..w - 4 {
+            let (i, j) = ((y * w + x) as usize, ((y - 3) * w + x + 4) as usize);
+            if a.triangle[i] == BACKGROUND && b.triangle[j] == BACKGROUND {
+                continue;
+            }
+            moved += 1;
+            let bary = (a.bary[i][0] - b.bary[j][0]).abs().max((a.bary[i][1] - b.bary[j][1]).abs());
+            if a.triangle[i] == b.triangle[j] && bary < 1e-4 {
+                same += 1;
+            }
+        }
+    }
+    assert!(moved > 1000, "{moved}");
+    assert!(same as f64 >= 0.999 * moved as f64, "{same} of {moved} pixels moved as the shift says");
+    assert!(a.triangle != b.triangle, "the shift changed nothing");
+}

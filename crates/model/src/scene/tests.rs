@@ -438,3 +438,23 @@ fn sh_f64_basis_matches_f32_and_its_jacobian_matches_finite_differences() {
         }
     }
 }
+
+#[test]
+fn a_lens_shift_moves_projections_and_clip_space_alike() {
+    let cam = Camera { center: [0.25, -0.125], aspect: 1.5, ..Camera::default() };
+    let on_axis = Camera { center: [0.0, 0.0], ..cam };
+    let (w, h) = (300u32, 200u32);
+    for p in [[30.0f32, -20.0, -450.0], [-5.0, 7.0, -20.0], [100.0, 80.0, -990.0]] {
+        let (a, b) = (cam.project(p, w, h).unwrap(), on_axis.project(p, w, h).unwrap());
+        // +0.25 NDC in x is 0.25·W/2 pixels right; −0.125 in y is 0.125·H/2 pixels down.
+        assert!((a[0] - b[0] - 37.5).abs() < 1e-3 && (a[1] - b[1] - 12.5).abs() < 1e-3, "{a:?} {b:?}");
+        for m in [cam.projection_gl(), cam.projection_zo()] {
+            let c = m * Vec3::from(p).extend(1.0);
+            let px = ndc_to_pixel([c.x / c.w, c.y / c.w], w, h);
+            assert!((px[0] - a[0]).abs() < 1e-3 && (px[1] - a[1]).abs() < 1e-3);
+            assert!((c.w + p[2]).abs() < 1e-3, "w is the distance");
+        }
+        // Depth does not depend on the shift.
+        assert_eq!(cam.clip_zo(p)[2], on_axis.clip_zo(p)[2]);
+    }
+}
