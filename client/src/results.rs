@@ -42,14 +42,13 @@ pub struct Fit {
     /// Where the coefficients started (the landmark fit, or the server's encoder).
     pub start: Start,
     pub refine: Refine,
-    /// In the camera of the face's crop.
+    /// In [`Self::camera`]'s frame.
     pub coefficients: Coefficients,
     /// Image pixels → crop pixels.
     pub crop: CropTransform,
     pub crop_size: u32,
-    pub fov_y_deg: f32,
-    pub near_mm: f32,
-    pub far_mm: f32,
+    /// The photo's camera, in its pixels (shared by every face of the photo).
+    pub camera: facerecon_recon::outputs::RecordCamera,
     pub fitted_landmarks: Vec<[f32; 2]>,
     pub landmark_rms_px: f32,
     pub landmark_rms_relative: f32,
@@ -214,9 +213,13 @@ fn fit_of(f: pb::Fit) -> Result<Fit, ClientError> {
         coefficients,
         crop: CropTransform { scale: crop.scale, offset: [crop.offset_x, crop.offset_y] },
         crop_size: f.crop_size,
-        fov_y_deg: camera.fov_y_deg,
-        near_mm: camera.near_mm,
-        far_mm: camera.far_mm,
+        camera: facerecon_recon::outputs::RecordCamera {
+            fov_y_deg: camera.fov_y_deg,
+            near_mm: camera.near_mm,
+            far_mm: camera.far_mm,
+            focal_px: camera.focal_px,
+            principal_point: [camera.principal_x, camera.principal_y],
+        },
         fitted_landmarks: points(&f.fitted_landmarks),
         landmark_rms_px: f.landmark_rms_px,
         landmark_rms_relative: f.landmark_rms_relative,
@@ -243,7 +246,7 @@ fn fit_of(f: pb::Fit) -> Result<Fit, ClientError> {
 impl Face {
     /// The face's record in the layout `facerecon fit` writes (`None` when not fitted).
     pub fn record(&self, model: &pb::ModelInfo) -> Option<facerecon_recon::outputs::FaceRecord> {
-        use facerecon_recon::outputs::{FaceRecord, RECORD_FORMAT, RecordCamera, Residuals};
+        use facerecon_recon::outputs::{FaceRecord, RECORD_FORMAT, Residuals};
         let fit = self.fit.as_ref().ok()?;
         let names = &model.expression_names;
         Some(FaceRecord {
@@ -261,7 +264,7 @@ impl Face {
                 .enumerate()
                 .map(|(k, w)| (names.get(k).cloned().unwrap_or_else(|| format!("mode{k}")), *w))
                 .collect(),
-            camera: RecordCamera { fov_y_deg: fit.fov_y_deg, near_mm: fit.near_mm, far_mm: fit.far_mm },
+            camera: fit.camera.clone(),
             crop: fit.crop,
             start: fit.start,
             crop_size: fit.crop_size,

@@ -10,6 +10,7 @@
 use std::time::{Duration, Instant};
 
 use facerecon_eval::photometric::{Rgb, psnr};
+use facerecon_fit::camera::CropCamera;
 use facerecon_fit::photometric::PhotometricSettings;
 use facerecon_fit::{LandmarkFitter, levenberg, photometric};
 use facerecon_vision::crop;
@@ -48,8 +49,9 @@ fn main() {
         let Some(b) = FaceBox::of_points(pts.iter().copied()) else { continue };
         let cr = crop::crop_face(&image, &b);
         let in_crop: Vec<[f32; 2]> = pts.iter().map(|p| cr.transform.to_crop(*p)).collect();
-        let Ok(lf) = fitter.fit(&in_crop, None) else { continue };
-        faces.push((cr.image, in_crop, lf));
+        let camera = CropCamera::of_photo(image.width(), image.height(), &cr.transform, crop::CROP_SIZE);
+        let Ok(lf) = fitter.fit(&camera, &in_crop, None) else { continue };
+        faces.push((cr.image, camera, in_crop, lf));
     }
     println!("{} faces of {:?}; budgets {budgets:?} s; iteration cap 100000", faces.len(), subsets);
     println!("budget | optimiser | loss mean | seconds used | iterations | colour L1 | PSNR dB");
@@ -61,18 +63,20 @@ fn main() {
                 ..Default::default()
             };
             let (mut loss, mut secs, mut its, mut l1, mut db, mut n) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
-            for (image, pts, lf) in &faces {
+            for (image, camera, pts, lf) in &faces {
                 let t = Instant::now();
                 let r = match name {
-                    "Adam" => photometric::fit_adam(&model, image, pts, &lf.vertices, &lf.coefficients, &settings),
-                    _ => levenberg::fit(&model, image, pts, &lf.vertices, &lf.coefficients, &settings),
+                    "Adam" => {
+                        photometric::fit_adam(&model, image, camera, pts, &lf.vertices, &lf.coefficients, &settings)
+                    }
+                    _ => levenberg::fit(&model, image, camera, pts, &lf.vertices, &lf.coefficients, &settings),
                 };
                 let Ok(r) = r else { continue };
                 secs += t.elapsed().as_secs_f64();
                 loss += r.losses.iter().copied().fold(f64::INFINITY, f64::min);
                 its += r.iterations as f64;
                 l1 += r.photometric_l1;
-                db += quality(&model, image, &r.coefficients).unwrap_or(f64::NAN);
+                db += quality(&model, image, camera, &r.coefficients).unwrap_or(f64::NAN);
                 n += 1.0;
             }
             println!(
@@ -91,9 +95,10 @@ fn main() {
 fn quality(
     model: &facerecon_model::MorphableModel,
     crop: &image::RgbImage,
+    camera: &CropCamera,
     c: &facerecon_model::Coefficients,
 ) -> Option<f64> {
-    let (frame, mask) = facerecon_recon::outputs::render_coefficients(model, c, None).ok()?;
+    let (frame, mask) = facerecon_recon::outputs::render_coefficients(model, camera, c, None).ok()?;
     let a: Vec<[f32; 3]> = crop.pixels().map(|p| p.0.map(|c| c as f32 / 255.0)).collect();
     let b: Vec<[f32; 3]> = frame.color.iter().map(|c| [c[0], c[1], c[2]].map(|x| x as f32 / 255.0)).collect();
     psnr(&Rgb { width: 224, height: 224, pixels: &a }, &Rgb { width: 224, height: 224, pixels: &b }, &mask)

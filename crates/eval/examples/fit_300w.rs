@@ -15,6 +15,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use facerecon_fit::LandmarkFitter;
+use facerecon_fit::camera::CropCamera;
 use facerecon_vision::crop::{self, CROP_SIZE, CropTransform};
 use facerecon_vision::face::FaceBox;
 
@@ -95,8 +96,11 @@ fn main() {
         let (left, top, side) = crop::crop_square(&lbox);
         let t = CropTransform::from_square(left, top, side, CROP_SIZE);
         let in_crop: Vec<[f32; 2]> = points.iter().map(|p| t.to_crop(*p)).collect();
+        // The pipeline's camera: the photo's, seen through the crop.
+        let (w, h) = image::image_dimensions(&img).expect("photo size");
+        let camera = CropCamera::of_photo(w, h, &t, CROP_SIZE);
         let start = Instant::now();
-        let fit = fitter.fit(&in_crop, None).expect("fit");
+        let fit = fitter.fit(&camera, &in_crop, None).expect("fit");
         times.push(start.elapsed().as_secs_f64());
         let err: Vec<f32> = fit
             .fitted

@@ -10,13 +10,16 @@
 //!     cargo run --release -p facerecon-eval --example synth_geometry -- [--per-bucket N] [--seed S] \
 //!         [--buckets 0,1,2,3] [--sigma S] [--lambda-id L] [--lambda-exp L] [--coarse [--iterations N]] \
 //!         [--full [--smooth λ] [--lr mm]] [--optimiser adam|lm] [--ph-lambda-id λ] [--ph-lambda-exp λ] \
-//!         [--encoder WEIGHTS] [--occlude] [--no-skin-mask] [--map-skin-mask] [--skin-sigmas K]
+//!         [--encoder WEIGHTS] [--occlude] [--no-skin-mask] [--map-skin-mask] [--skin-sigmas K] \
+//!         [--max-image-side PX]
 //!
 //! `--coarse` adds the photometric fit started from the exact landmarks' landmark fit;
 //! `--full` the displacement map on it too (the coarse figure then comes from the same run).
 //! `--occlude` draws an occluder over each face (`facerecon_synth::occluder`: up to a quarter
 //! of its landmark box); `--no-skin-mask` turns the coarse fit's skin mask off,
 //! `--map-skin-mask` turns the displacement stage's on.
+//! `--max-image-side PX` caps the drawn photo size (default 1024): small photos around a face
+//! give it strong perspective, large ones weak.
 //! `--encoder W` adds the learned encoder (ONNX Runtime, weights file W) on the same crop
 //! (from the exact landmarks): alone, and refined by the coarse fit, with seconds per face.
 
@@ -74,6 +77,7 @@ fn main() {
     let mut settings = facerecon_fit::LandmarkFitSettings::default();
     let mut buckets: Vec<u8> = vec![0, 1, 2, 3];
     let mut coarse = false;
+    let mut max_image_side = SynthConfig::default().max_image_side;
     let mut full = false;
     let mut iterations: Option<usize> = None;
     let mut displacement = facerecon_fit::displacement::DisplacementSettings::default();
@@ -124,6 +128,7 @@ fn main() {
             "--lr" => displacement.learning_rate = v.parse().expect("number"),
             "--encoder" => encoder = Some(v),
             "--skin-sigmas" => photometric.skin_sigmas = v.parse().expect("number"),
+            "--max-image-side" => max_image_side = v.parse().expect("pixels"),
             "--buckets" => buckets = v.split(',').map(|b| b.parse().expect("bucket 0-3")).collect(),
             _ => panic!("unknown argument {a}"),
         }
@@ -151,7 +156,7 @@ fn main() {
         "bucket | faces | found | detected landmarks' inner-49 NME vs truth, mean (median) | mean face p2plane (p2point) | fit from exact landmarks | mean face, found faces | fit from the photo (detect + landmarks)"
     );
     for &bucket in &buckets {
-        let config = SynthConfig { buckets: vec![bucket], yaw_max_deg: 60.0, ..SynthConfig::default() };
+        let config = SynthConfig { buckets: vec![bucket], yaw_max_deg: 60.0, max_image_side, ..SynthConfig::default() };
         let generator = Generator::new(&model, config).expect("generator");
         let rows: Vec<Row> = (0..per_bucket)
             .into_par_iter()

@@ -21,12 +21,17 @@ fn benches(c: &mut Criterion) {
     let pts: Vec<[f32; 2]> = s.truth.landmarks.iter().map(|l| l.xy).collect();
     let cr = crop::crop_face(&s.image, &FaceBox::of_points(pts.iter().copied()).unwrap());
     let in_crop: Vec<[f32; 2]> = pts.iter().map(|p| cr.transform.to_crop(*p)).collect();
-    let lf = LandmarkFitter::new(&model).unwrap().fit(&in_crop, None).unwrap();
+    let camera =
+        facerecon_fit::camera::CropCamera::of_photo(s.image.width(), s.image.height(), &cr.transform, crop::CROP_SIZE);
+    let lf = LandmarkFitter::new(&model).unwrap().fit(&camera, &in_crop, None).unwrap();
     let settings = PhotometricSettings::default();
     let adam_settings = PhotometricSettings { iterations: 80, ..settings };
-    let run = || photometric::fit(&model, &cr.image, &in_crop, &lf.vertices, &lf.coefficients, &settings).unwrap();
-    let adam =
-        || photometric::fit_adam(&model, &cr.image, &in_crop, &lf.vertices, &lf.coefficients, &adam_settings).unwrap();
+    let run =
+        || photometric::fit(&model, &cr.image, &camera, &in_crop, &lf.vertices, &lf.coefficients, &settings).unwrap();
+    let adam = || {
+        photometric::fit_adam(&model, &cr.image, &camera, &in_crop, &lf.vertices, &lf.coefficients, &adam_settings)
+            .unwrap()
+    };
     for (name, r) in [("coarse fit (LM)", run()), ("Adam", adam())] {
         eprintln!("{name}: {} iterations, loss {:.3} → {:.3}", r.iterations, r.losses[0], r.losses.last().unwrap());
     }

@@ -20,13 +20,17 @@ fn benches(c: &mut Criterion) {
     let pts = facerecon_vision::pts::read(&std::fs::read(photo.with_extension("pts")).unwrap()).unwrap();
     let cr = crop::crop_face(&image, &FaceBox::of_points(pts.iter().copied()).unwrap());
     let in_crop: Vec<[f32; 2]> = pts.iter().map(|p| cr.transform.to_crop(*p)).collect();
-    let lf = LandmarkFitter::new(&model).unwrap().fit(&in_crop, None).unwrap();
+    let camera =
+        facerecon_fit::camera::CropCamera::of_photo(image.width(), image.height(), &cr.transform, crop::CROP_SIZE);
+    let lf = LandmarkFitter::new(&model).unwrap().fit(&camera, &in_crop, None).unwrap();
     let coarse_settings = PhotometricSettings::default();
-    let coarse =
-        || photometric::fit(&model, &cr.image, &in_crop, &lf.vertices, &lf.coefficients, &coarse_settings).unwrap();
+    let coarse = || {
+        photometric::fit(&model, &cr.image, &camera, &in_crop, &lf.vertices, &lf.coefficients, &coarse_settings)
+            .unwrap()
+    };
     let start = coarse().coefficients;
     let settings = DisplacementSettings::default();
-    let run = || displacement::fit(&model, &cr.image, &in_crop, &lf.vertices, &start, &settings).unwrap();
+    let run = || displacement::fit(&model, &cr.image, &camera, &in_crop, &lf.vertices, &start, &settings).unwrap();
     let r = run();
     eprintln!(
         "displacement: {} iterations, colour L1 {:.4} → {:.4}, offsets {:.2} to {:.2} mm",

@@ -7,7 +7,7 @@
 //!
 //! * [`linear`] — `s̄ + U·w` (shape: identity + expression; albedo), face area.
 //! * [`pose`] — `R(q)·x + t`, axis-angle `q`.
-//! * [`project`] — the crop camera's perspective projection to pixels.
+//! * [`project`] — the fit camera's perspective projection to crop pixels.
 //! * [`normals`] — area-weighted, normalised vertex normals.
 //! * [`shading`] — Lambertian SH colour `A ⊙ (Wᵀ φ(n))` (Eq. 3.1).
 //! * [`interpolate`] — attributes at pixels from a visibility buffer (triangle id and

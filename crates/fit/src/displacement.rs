@@ -19,6 +19,7 @@ use facerecon_model::{Coefficients, DisplacementMap, Extent, MorphableModel, dis
 use glam::DVec3;
 use image::RgbImage;
 
+use crate::camera::CropCamera;
 use crate::decoder::{displace, linear::Linear, normals, pose, shading};
 use crate::error::FitError;
 use crate::photometric::{Adam, Target};
@@ -88,6 +89,7 @@ pub struct DisplacementFit {
 pub fn fit(
     model: &MorphableModel,
     crop: &RgbImage,
+    camera: &CropCamera,
     landmarks: &[[f32; 2]],
     landmark_vertices: &[u32],
     coefficients: &Coefficients,
@@ -96,7 +98,8 @@ pub fn fit(
     if coefficients.layout() != model.layout() {
         return Err(FitError::Model("coefficients do not match the model".into()));
     }
-    let mut target = Target::new(model, crop, landmarks, landmark_vertices)?;
+    let depth = -coefficients.translation[2] as f64;
+    let mut target = Target::new(model, crop, camera, depth, landmarks, landmark_vertices)?;
     let mut map = DisplacementMap::zeros(settings.size).map_err(FitError::Evaluate)?;
     let nv = model.extent_vertices(Extent::Face);
     let tris = target.triangles;

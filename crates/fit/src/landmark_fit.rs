@@ -1,7 +1,7 @@
 //! The landmark fit (DESIGN §6, first stage): the model's pose, identity and expression from
-//! 68 landmarks, in the crop camera's frame ([`crate::camera`]).
+//! 68 landmarks, in the frame of the camera it is given ([`crate::camera`]).
 //!
-//! Cost, with `π` the crop camera, `v_j` the landmark's vertex (contour points: the vertex
+//! Cost, with `π` the camera, `v_j` the landmark's vertex (contour points: the vertex
 //! [`crate::contour`] picks for the current pose), `c_j` the landmark's confidence times the
 //! contour weight for points 1–17, `σ` the landmark noise in crop pixels:
 //!
@@ -62,7 +62,7 @@ impl Default for LandmarkFitSettings {
     }
 }
 
-/// The result of a landmark fit, in the crop camera's frame.
+/// The result of a landmark fit, in the frame of the camera it was given.
 #[derive(Clone, Debug)]
 pub struct LandmarkFit {
     /// Identity, expression, rotation and translation fitted; albedo at the mean and the
@@ -87,7 +87,6 @@ pub struct LandmarkFitter {
     /// Model-space x of each moving point's landmark (its side of the face).
     moving_x: Vec<f32>,
     layout: facerecon_model::CoeffLayout,
-    camera: CropCamera,
     pub settings: LandmarkFitSettings,
 }
 
@@ -116,17 +115,18 @@ impl LandmarkFitter {
             candidates,
             moving_x,
             layout,
-            camera: CropCamera::crop(),
             settings: LandmarkFitSettings::default(),
         })
     }
 
-    pub fn camera(&self) -> &CropCamera {
-        &self.camera
-    }
-
-    /// Fits 68 landmarks given in crop pixels, with per-point confidences (`None`: all 1).
-    pub fn fit(&self, points: &[[f32; 2]], confidence: Option<&[f32]>) -> Result<LandmarkFit, FitError> {
+    /// Fits 68 landmarks given in the pixels of `camera`'s image (a face's crop), with
+    /// per-point confidences (`None`: all 1).
+    pub fn fit(
+        &self,
+        camera: &CropCamera,
+        points: &[[f32; 2]],
+        confidence: Option<&[f32]>,
+    ) -> Result<LandmarkFit, FitError> {
         if points.len() != LANDMARKS {
             return Err(FitError::Landmarks(format!("{} points given, 68 needed", points.len())));
         }
@@ -148,25 +148,24 @@ impl LandmarkFitter {
         let mut w = vec![0.0f64; ni + self.layout.expression];
         // Subset index of each point's vertex: the fixed landmark until the contour moves it.
         let mut active: Vec<usize> = (0..LANDMARKS).collect();
-        let (mut rot, mut t) = self.initial_pose(&target)?;
+        let (mut rot, mut t) = self.initial_pose(camera, &target)?;
         let mut model_pos: Vec<DVec3> = Vec::new();
         for _ in 0..s.iterations {
             self.evaluate(&w, &mut model_pos);
             for (m, &j) in MOVING.iter().enumerate() {
-                let best = self.select_contour(m, &rot, t, &model_pos);
+                let best = self.select_contour(camera, m, &rot, t, &model_pos);
                 active[j] = best;
             }
             let pts: Vec<DVec3> = active.iter().map(|&v| model_pos[v]).collect();
-            self.pose_steps(&pts, &target, &weights, &mut rot, &mut t)?;
-            self.shape_step(&active, &target, &weights, &rot, t, &mut w, Block::Identity);
-            self.shape_step(&active, &target, &weights, &rot, t, &mut w, Block::Expression);
+            self.pose_steps(camera, &pts, &target, &weights, &mut rot, &mut t)?;
+            self.shape_step(camera, &active, &target, &weights, &rot, t, &mut w, Block::Identity);
+            self.shape_step(camera, &active, &target, &weights, &rot, t, &mut w, Block::Expression);
         }
         self.evaluate(&w, &mut model_pos);
         let mut fitted = Vec::with_capacity(LANDMARKS);
         let mut sq = 0.0;
         for (j, &v) in active.iter().enumerate() {
-            let p = self
-                .camera
+            let p = camera
                 .project(rot * model_pos[v] + t)
                 .ok_or_else(|| FitError::Diverged("a landmark ended behind the camera".into()))?;
             sq += (p[0] - target[j][0]).powi(2) + (p[1] - target[j][1]).powi(2);
@@ -195,20 +194,20 @@ impl LandmarkFitter {
         out.extend((0..self.subset.len()).map(|v| self.subset.position(v, w)));
     }
 
-    fn select_contour(&self, m: usize, rot: &DMat3, t: DVec3, model_pos: &[DVec3]) -> usize {
+    fn select_contour(&self, camera: &CropCamera, m: usize, rot: &DMat3, t: DVec3, model_pos: &[DVec3]) -> usize {
         let side = self.moving_x[m].signum() as f64;
         let cands = self.candidates[m].iter().map(|&v| (v, *rot * model_pos[v] + t));
-        contour::pick(cands, side, rot, &self.camera).unwrap_or(self.candidates[m][0])
+        contour::pick(cands, side, rot, camera).unwrap_or(self.candidates[m][0])
     }
 
     /// Affine camera on the mean face's inner and chin landmarks → rotation and translation.
-    fn initial_pose(&self, target: &[[f64; 2]]) -> Result<(DMat3, DVec3), FitError> {
+    fn initial_pose(&self, camera: &CropCamera, target: &[[f64; 2]]) -> Result<(DMat3, DVec3), FitError> {
         let used: Vec<usize> = (7..10).chain(17..LANDMARKS).collect();
         let n = used.len() as f64;
         let x3: Vec<DVec3> = used.iter().map(|&j| self.subset.mean(j)).collect();
         // Image points with y up, relative to the optical axis.
-        let c = self.camera.c;
-        let x2: Vec<[f64; 2]> = used.iter().map(|&j| [target[j][0] - c, c - target[j][1]]).collect();
+        let c = camera.c;
+        let x2: Vec<[f64; 2]> = used.iter().map(|&j| [target[j][0] - c[0], c[1] - target[j][1]]).collect();
         let m3 = x3.iter().copied().sum::<DVec3>() / n;
         let m2 = [x2.iter().map(|p| p[0]).sum::<f64>() / n, x2.iter().map(|p| p[1]).sum::<f64>() / n];
         // Least squares A (2×3): x2 − m2 ≈ A·(x3 − m3).
@@ -238,7 +237,7 @@ impl LandmarkFitter {
         let r1 = DVec3::new(r12[(0, 0)], r12[(0, 1)], r12[(0, 2)]);
         let r2 = DVec3::new(r12[(1, 0)], r12[(1, 1)], r12[(1, 2)]);
         let rot = DMat3::from_cols(r1, r2, r1.cross(r2)).transpose();
-        let depth = self.camera.k / scale;
+        let depth = camera.k / scale;
         let centre = DVec3::new(m2[0] / scale, m2[1] / scale, -depth);
         let t = centre - rot * m3;
         Ok((rot, t))
@@ -247,6 +246,7 @@ impl LandmarkFitter {
     /// Weighted residuals `weights_j·(π(R·p_j + t) − l_j)`, x then y per point, and the cost.
     fn residuals(
         &self,
+        camera: &CropCamera,
         pts: &[DVec3],
         target: &[[f64; 2]],
         weights: &[f64],
@@ -255,7 +255,7 @@ impl LandmarkFitter {
     ) -> Option<(Vec<f64>, f64)> {
         let mut r = Vec::with_capacity(2 * pts.len());
         for ((p, l), wt) in pts.iter().zip(target).zip(weights) {
-            let q = self.camera.project(*rot * *p + t)?;
+            let q = camera.project(*rot * *p + t)?;
             r.push(wt * (q[0] - l[0]));
             r.push(wt * (q[1] - l[1]));
         }
@@ -265,13 +265,14 @@ impl LandmarkFitter {
 
     fn pose_steps(
         &self,
+        camera: &CropCamera,
         pts: &[DVec3],
         target: &[[f64; 2]],
         weights: &[f64],
         rot: &mut DMat3,
         t: &mut DVec3,
     ) -> Result<(), FitError> {
-        let Some((mut r, mut cost)) = self.residuals(pts, target, weights, rot, *t) else {
+        let Some((mut r, mut cost)) = self.residuals(camera, pts, target, weights, rot, *t) else {
             return Err(FitError::Diverged("the face is behind the camera".into()));
         };
         let mut damping = 1e-4;
@@ -280,7 +281,7 @@ impl LandmarkFitter {
             let mut jtr = nalgebra::Vector6::<f64>::zeros();
             for (j, (p, wt)) in pts.iter().zip(weights).enumerate() {
                 let pr = *rot * *p;
-                let jp = self.camera.jacobian(pr + *t);
+                let jp = camera.jacobian(pr + *t);
                 for (a, row) in jp.iter().enumerate() {
                     let g = DVec3::from(*row) * *wt;
                     // d(π)/dω = g·(−[pr]×) = (pr × g)ᵀ ; d/dt = g.
@@ -303,7 +304,7 @@ impl LandmarkFitter {
                 let omega = DVec3::new(step[0], step[1], step[2]);
                 let rot_new = facerecon_model::scene::rotation_matrix_f64(omega.to_array()) * *rot;
                 let t_new = *t + DVec3::new(step[3], step[4], step[5]);
-                if let Some((r_new, c_new)) = self.residuals(pts, target, weights, &rot_new, t_new)
+                if let Some((r_new, c_new)) = self.residuals(camera, pts, target, weights, &rot_new, t_new)
                     && c_new <= cost
                 {
                     (*rot, *t, r, cost) = (rot_new, t_new, r_new, c_new);
@@ -324,6 +325,7 @@ impl LandmarkFitter {
     #[allow(clippy::too_many_arguments)]
     fn shape_step(
         &self,
+        camera: &CropCamera,
         active: &[usize],
         target: &[[f64; 2]],
         weights: &[f64],
@@ -344,8 +346,8 @@ impl LandmarkFitter {
         let mut r = DVector::<f64>::zeros(2 * n);
         for (j, &v) in active.iter().enumerate() {
             let p = *rot * self.subset.position(v, w) + t;
-            let Some(q) = self.camera.project(p) else { return };
-            let jp = self.camera.jacobian(p);
+            let Some(q) = camera.project(p) else { return };
+            let jp = camera.jacobian(p);
             let wt = weights[j];
             r[2 * j] = wt * (q[0] - target[j][0]);
             r[2 * j + 1] = wt * (q[1] - target[j][1]);

@@ -23,6 +23,7 @@ use glam::DVec3;
 use image::RgbImage;
 use nalgebra::{DMatrix, DVector};
 
+use crate::camera::CropCamera;
 use crate::decoder::{barycentric, pose, project};
 use crate::error::FitError;
 use crate::photometric::{Footprint, Forward, Objective, PhotometricFit, PhotometricSettings};
@@ -38,12 +39,13 @@ const IRLS_FLOOR: f64 = 0.01;
 pub fn fit(
     model: &MorphableModel,
     crop: &RgbImage,
+    camera: &CropCamera,
     landmarks: &[[f32; 2]],
     landmark_vertices: &[u32],
     start: &Coefficients,
     settings: &PhotometricSettings,
 ) -> Result<PhotometricFit, FitError> {
-    let (objective, mut x) = Objective::start(model, crop, landmarks, landmark_vertices, settings, start)?;
+    let (objective, mut x) = Objective::start(model, crop, camera, landmarks, landmark_vertices, settings, start)?;
     let l = objective.layout;
     let started = Instant::now();
     let mut losses = Vec::new();
@@ -212,11 +214,20 @@ mod tests {
         let pts: Vec<[f32; 2]> = s.truth.landmarks.iter().map(|l| l.xy).collect();
         let cr = crop::crop_face(&s.image, &FaceBox::of_points(pts.iter().copied()).unwrap());
         let in_crop: Vec<[f32; 2]> = pts.iter().map(|p| cr.transform.to_crop(*p)).collect();
-        let lf = crate::LandmarkFitter::new(&model).unwrap().fit(&in_crop, None).unwrap();
+        let camera = CropCamera::of_photo(s.image.width(), s.image.height(), &cr.transform, crop::CROP_SIZE);
+        let lf = crate::LandmarkFitter::new(&model).unwrap().fit(&camera, &in_crop, None).unwrap();
         let settings = PhotometricSettings { iterations: 25, ..Default::default() };
-        let adam = crate::photometric::fit_adam(&model, &cr.image, &in_crop, &lf.vertices, &lf.coefficients, &settings)
-            .unwrap();
-        let lm = fit(&model, &cr.image, &in_crop, &lf.vertices, &lf.coefficients, &settings).unwrap();
+        let adam = crate::photometric::fit_adam(
+            &model,
+            &cr.image,
+            &camera,
+            &in_crop,
+            &lf.vertices,
+            &lf.coefficients,
+            &settings,
+        )
+        .unwrap();
+        let lm = fit(&model, &cr.image, &camera, &in_crop, &lf.vertices, &lf.coefficients, &settings).unwrap();
         // One loss: both start from the same value.
         assert_eq!(adam.losses[0], lm.losses[0]);
         let last = *lm.losses.last().unwrap();

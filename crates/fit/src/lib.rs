@@ -1,9 +1,11 @@
 //! Reconstruction by fitting (DESIGN §6): the morphable model fitted to a face in a photo.
 //!
-//! * [`camera`] — the crop camera: the fov-30° perspective camera of DESIGN §4 looking at a
-//!   face's 224-px square crop, with its projection's Jacobian. Fits happen in this frame,
-//!   so that every face, whatever its size in the photo, is fitted at one scale; results
-//!   map back to image pixels through the crop's [`facerecon_vision::crop::CropTransform`].
+//! * [`camera`] — the fit's camera in the pixels of a face's 224-px square crop, with its
+//!   projection's Jacobian: the photo's fov-30° camera (DESIGN §4) seen through the crop
+//!   ([`camera::CropCamera::of_photo`]), or the camera on the crop itself, the encoder's
+//!   frame ([`camera::CropCamera::crop`]). Fits compare pixels in the crop, so that every
+//!   face, whatever its size in the photo, is fitted at one scale; results map back to
+//!   image pixels through the crop's [`facerecon_vision::crop::CropTransform`].
 //! * [`subset`] — a few model vertices (landmarks, contour candidates) with their rows of
 //!   the identity and expression bases, evaluated without touching the rest of the mesh.
 //! * [`contour`] — which vertex each jaw landmark (iBUG 1–17) sits on under a given pose.

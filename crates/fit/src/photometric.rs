@@ -166,9 +166,12 @@ pub(crate) struct Target<'a> {
 
 impl<'a> Target<'a> {
     /// Checks the inputs of a fit against `model` and prepares the crop.
+    /// `depth_mm`: the face's distance at the start (where the clip planes go).
     pub(crate) fn new(
         model: &'a MorphableModel,
         crop: &RgbImage,
+        crop_camera: &CropCamera,
+        depth_mm: f64,
         landmarks: &'a [[f32; 2]],
         landmark_vertices: &'a [u32],
     ) -> Result<Self, FitError> {
@@ -180,12 +183,18 @@ impl<'a> Target<'a> {
             return Err(FitError::Landmarks("a landmark vertex is outside the face area".into()));
         }
         let (width, height) = crop.dimensions();
-        let camera = Camera::default();
+        if width != height || width != crop_camera.size {
+            return Err(FitError::Model(format!(
+                "a {width}×{height} crop for a camera of {0}×{0} pixels",
+                crop_camera.size
+            )));
+        }
+        let camera = crop_camera.scene_camera(depth_mm);
         Ok(Target {
             width,
             height,
             camera,
-            crop_camera: CropCamera::new(&camera, width),
+            crop_camera: *crop_camera,
             clip: barycentric::Clip::new(&camera),
             colors: crop.pixels().map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64) / 255.0).collect(),
             region: model.mask(facerecon_model::Mask::NarrowFace),
@@ -450,6 +459,7 @@ impl<'a> Objective<'a> {
     pub(crate) fn start(
         model: &'a MorphableModel,
         crop: &RgbImage,
+        camera: &CropCamera,
         landmarks: &'a [[f32; 2]],
         landmark_vertices: &'a [u32],
         settings: &'a PhotometricSettings,
@@ -458,7 +468,8 @@ impl<'a> Objective<'a> {
         if start.layout() != model.layout() {
             return Err(FitError::Model("start coefficients do not match the model".into()));
         }
-        let mut objective = Self::new(model, crop, landmarks, landmark_vertices, settings)?;
+        let depth = -start.translation[2] as f64;
+        let mut objective = Self::new(model, crop, camera, depth, landmarks, landmark_vertices, settings)?;
         let x = objective.layout.flatten(start);
         if settings.skin_mask {
             let points = objective.forward(&x)?.points;
@@ -471,13 +482,15 @@ impl<'a> Objective<'a> {
     fn new(
         model: &'a MorphableModel,
         crop: &RgbImage,
+        camera: &CropCamera,
+        depth_mm: f64,
         landmarks: &'a [[f32; 2]],
         landmark_vertices: &'a [u32],
         settings: &'a PhotometricSettings,
     ) -> Result<Self, FitError> {
         Ok(Objective {
             model,
-            target: Target::new(model, crop, landmarks, landmark_vertices)?,
+            target: Target::new(model, crop, camera, depth_mm, landmarks, landmark_vertices)?,
             settings,
             layout: Layout::of(model),
         })
@@ -562,15 +575,16 @@ impl<'a> Objective<'a> {
 pub fn fit(
     model: &MorphableModel,
     crop: &RgbImage,
+    camera: &CropCamera,
     landmarks: &[[f32; 2]],
     landmark_vertices: &[u32],
     start: &Coefficients,
     settings: &PhotometricSettings,
 ) -> Result<PhotometricFit, FitError> {
     match settings.optimiser {
-        Optimiser::Adam => fit_adam(model, crop, landmarks, landmark_vertices, start, settings),
+        Optimiser::Adam => fit_adam(model, crop, camera, landmarks, landmark_vertices, start, settings),
         Optimiser::LevenbergMarquardt => {
-            crate::levenberg::fit(model, crop, landmarks, landmark_vertices, start, settings)
+            crate::levenberg::fit(model, crop, camera, landmarks, landmark_vertices, start, settings)
         }
     }
 }
@@ -579,12 +593,13 @@ pub fn fit(
 pub fn fit_adam(
     model: &MorphableModel,
     crop: &RgbImage,
+    camera: &CropCamera,
     landmarks: &[[f32; 2]],
     landmark_vertices: &[u32],
     start: &Coefficients,
     settings: &PhotometricSettings,
 ) -> Result<PhotometricFit, FitError> {
-    let (objective, mut x) = Objective::start(model, crop, landmarks, landmark_vertices, settings, start)?;
+    let (objective, mut x) = Objective::start(model, crop, camera, landmarks, landmark_vertices, settings, start)?;
     let l = objective.layout;
     let mut adam = Adam::new(x.len());
     let blocks = [
@@ -649,7 +664,7 @@ mod skin_tests {
         });
         let landmarks = vec![[112.0f32, 112.0]; 68];
         let vertices: Vec<u32> = model.landmarks().to_vec();
-        let mut target = Target::new(&model, &crop, &landmarks, &vertices).unwrap();
+        let mut target = Target::new(&model, &crop, &CropCamera::crop(), 500.0, &landmarks, &vertices).unwrap();
         // Every pixel covered by one triangle of plain skin vertices (no eyes, no mouth).
         let v = (0..target.features.len()).find(|&v| !target.features[v]).unwrap() as u32;
         let fp: Footprint = (0..224 * 224).map(|p| (p, [(v, 1.0), (v, 0.0), (v, 0.0)])).collect();

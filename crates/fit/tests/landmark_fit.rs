@@ -4,6 +4,7 @@
 //! projection), with the jaw points on the outline found by brute force over the whole
 //! face-area mesh's silhouette edges.
 
+use facerecon_fit::camera::CropCamera;
 use facerecon_fit::landmark_fit::LANDMARKS;
 use facerecon_fit::{FitError, LandmarkFitter};
 use facerecon_model::scene::{Camera, Pose};
@@ -120,10 +121,11 @@ fn angle_between(a: [f32; 3], b: [f32; 3]) -> f32 {
 #[test]
 fn recovers_pose_and_landmarks_of_frontal_faces() {
     let (model, f) = fitter();
+    let crop = CropCamera::crop();
     for seed in 1..6 {
         let truth = face(&model, seed, 8.0 * (seed as f32 - 3.0), 4.0);
         let pts = landmarks(&model, &truth);
-        let fit = f.fit(&pts, None).unwrap();
+        let fit = f.fit(&crop, &pts, None).unwrap();
         let inner = mean_error(&fit.fitted, &pts, 17..68);
         let angle = angle_between(fit.coefficients.rotation, truth.rotation);
         eprintln!("seed {seed}: inner mean error {inner:.3} px, rms {:.3} px, rotation off by {angle:.2}°", fit.rms_px);
@@ -138,10 +140,11 @@ fn recovers_pose_and_landmarks_of_frontal_faces() {
 #[test]
 fn turned_faces_keep_inner_points_and_move_the_far_contour_inwards() {
     let (model, f) = fitter();
+    let crop = CropCamera::crop();
     for (seed, yaw) in [(11, 45.0f32), (12, -45.0), (13, 60.0)] {
         let truth = face(&model, seed, yaw, 0.0);
         let pts = landmarks(&model, &truth);
-        let fit = f.fit(&pts, None).unwrap();
+        let fit = f.fit(&crop, &pts, None).unwrap();
         let inner = mean_error(&fit.fitted, &pts, 17..68);
         let angle = angle_between(fit.coefficients.rotation, truth.rotation);
         eprintln!("yaw {yaw}: inner mean error {inner:.3} px, rotation off by {angle:.2}°");
@@ -164,25 +167,57 @@ fn turned_faces_keep_inner_points_and_move_the_far_contour_inwards() {
 #[test]
 fn bad_landmarks_are_refused_clearly() {
     let (model, f) = fitter();
+    let crop = CropCamera::crop();
     let pts = landmarks(&model, &face(&model, 3, 0.0, 0.0));
-    assert!(matches!(f.fit(&pts[..60], None), Err(FitError::Landmarks(_))));
+    assert!(matches!(f.fit(&crop, &pts[..60], None), Err(FitError::Landmarks(_))));
     let mut nan = pts.clone();
     nan[20][0] = f32::NAN;
-    let e = f.fit(&nan, None).unwrap_err();
+    let e = f.fit(&crop, &nan, None).unwrap_err();
     assert!(e.to_string().contains("point 21"), "{e}");
     assert_eq!(e.kind(), facerecon_model::ErrorKind::Input);
     // All points on one spot: no area, no pose.
-    let e = f.fit(&[[100.0, 100.0]; 68], None).unwrap_err();
+    let e = f.fit(&crop, &[[100.0, 100.0]; 68], None).unwrap_err();
     assert_eq!(e.kind(), facerecon_model::ErrorKind::Input, "{e}");
     // Far outside the crop and tiny, or huge: a result or a clear error, never a panic.
     for scale in [1e-3f32, 50.0, 1e6] {
         let p: Vec<[f32; 2]> = pts.iter().map(|q| [q[0] * scale + 5000.0, q[1] * scale - 3000.0]).collect();
-        if let Ok(fit) = f.fit(&p, None) {
+        if let Ok(fit) = f.fit(&crop, &p, None) {
             assert!(fit.coefficients.translation.iter().all(|x| x.is_finite()));
         }
     }
     // Zero confidence everywhere: the prior alone decides, and the fit stays finite.
-    if let Ok(fit) = f.fit(&pts, Some(&[0.0; 68])) {
+    if let Ok(fit) = f.fit(&crop, &pts, Some(&[0.0; 68])) {
         assert!(fit.rms_px.is_finite());
     }
+}
+
+#[test]
+fn a_small_face_off_centre_in_a_large_photo_is_fitted_in_the_photos_camera() {
+    // The face 4 m away, right of and above the optical axis of a 1600×1200 photo's
+    // fov-30° camera: its landmarks projected by that camera (the scene camera, an
+    // independent projection), then mapped into the face's crop as the pipeline frames it.
+    let (model, f) = fitter();
+    let mut truth = face(&model, 21, 20.0, 5.0);
+    truth.translation = [900.0, 500.0, -4000.0];
+    let (w, h) = (1600u32, 1200u32);
+    let photo = Camera { aspect: w as f32 / h as f32, ..Camera::default() };
+    let mesh = model.instance(&truth).unwrap();
+    let pos = Pose::from_coefficients(&truth).apply(&mesh.positions);
+    let all: Vec<[f32; 2]> = model.landmarks().iter().map(|&v| photo.project(pos[v as usize], w, h).unwrap()).collect();
+    let b = facerecon_vision::face::FaceBox::of_points(all.iter().copied()).unwrap();
+    let (left, top, side) = facerecon_vision::crop::crop_square(&b);
+    let t = facerecon_vision::crop::CropTransform::from_square(left, top, side, 224);
+    let pts: Vec<[f32; 2]> = all.iter().map(|p| t.to_crop(*p)).collect();
+    assert!(side < 0.1 * h as f32, "a small face: {side} px");
+    let camera = CropCamera::of_photo(w, h, &t, 224);
+    let fit = f.fit(&camera, &pts, None).unwrap();
+    let angle = angle_between(fit.coefficients.rotation, truth.rotation);
+    let [x, y, z] = fit.coefficients.translation;
+    eprintln!("photo camera: rotation off by {angle:.2}°, translation {:?}", fit.coefficients.translation);
+    assert!(angle < 4.0, "rotation off by {angle}°");
+    assert!((z + 4000.0).abs() < 0.06 * 4000.0, "distance {z}");
+    assert!((x - 900.0).abs() < 0.06 * 900.0 && (y - 500.0).abs() < 0.06 * 500.0, "position {x} {y}");
+    // DESIGN's crop camera puts the same face ≈ 0.6 m away, straight ahead: another frame.
+    let other = f.fit(&CropCamera::crop(), &pts, None).unwrap();
+    assert!(other.coefficients.translation[2] > -1500.0, "{:?}", other.coefficients.translation);
 }

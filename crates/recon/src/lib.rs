@@ -19,6 +19,7 @@ pub mod texture;
 
 use std::sync::Arc;
 
+use facerecon_fit::camera::CropCamera;
 use facerecon_fit::displacement::{self, DisplacementSettings};
 use facerecon_fit::photometric::{self, PhotometricSettings};
 use facerecon_fit::{FitError, LandmarkFit, LandmarkFitter};
@@ -120,7 +121,7 @@ impl From<FrontEndError> for ReconError {
 pub struct FaceRecon {
     /// Detection, 68 input landmarks, box, bucket (image pixels).
     pub face: Face,
-    /// Crop pixels ↔ image pixels for this face; the fit's camera looks at the crop.
+    /// Crop pixels ↔ image pixels for this face; the fit's camera renders the crop.
     pub crop: CropTransform,
     /// The fit, or why this face could not be fitted (too small, degenerate landmarks …).
     pub fit: Result<FaceFit, FaceError>,
@@ -133,8 +134,11 @@ pub struct FaceFit {
     pub start: Start,
     /// The level reached.
     pub refine: Refine,
-    /// The final coefficients, in the crop camera's frame (DESIGN §4's camera on the 224²
-    /// crop).
+    /// The camera of the coefficients: the photo's (DESIGN §4's fov 30° over its height)
+    /// seen through this face's crop ([`CropCamera::of_photo`]). Every face of a photo
+    /// shares its camera space.
+    pub camera: CropCamera,
+    /// The final coefficients, in [`Self::camera`]'s frame.
     pub coefficients: Coefficients,
     /// The landmark fit (the start of the photometric fit unless the encoder gave one; its
     /// contour-aware landmark vertices serve either way).
@@ -374,17 +378,27 @@ impl Pipeline {
         start: Option<Coefficients>,
     ) -> Result<FaceFit, FaceError> {
         let pts: Vec<[f32; 2]> = face.landmarks.points.iter().map(|p| crop.to_crop(*p)).collect();
-        let landmark_fit =
-            self.fitter.fit(&pts, Some(&face.landmarks.confidence)).map_err(|e| FaceError::Fit(e.to_string()))?;
+        let camera = CropCamera::of_photo(image.width(), image.height(), crop, CROP_SIZE);
+        let landmark_fit = self
+            .fitter
+            .fit(&camera, &pts, Some(&face.landmarks.confidence))
+            .map_err(|e| FaceError::Fit(e.to_string()))?;
         let start_kind = if start.is_some() { Start::Encoder } else { Start::Landmarks };
-        let start = start.unwrap_or_else(|| landmark_fit.coefficients.clone());
+        let start = match start {
+            // The encoder answers in the crop's own camera (its training frame).
+            Some(mut c) => {
+                camera.transfer_pose(&CropCamera::crop(), &mut c);
+                c
+            }
+            None => landmark_fit.coefficients.clone(),
+        };
         let fit_err = |e: FitError| FaceError::Fit(e.to_string());
         let (coefficients, photometric, displacement) = match refine {
             Refine::None | Refine::Landmarks => (start, None, None),
             Refine::Coarse | Refine::Full => {
                 let crop_image = crop::crop_face(image, &face.landmark_box).image;
                 let vertices = &landmark_fit.vertices;
-                let p = photometric::fit(&self.model, &crop_image, &pts, vertices, &start, &self.photometric)
+                let p = photometric::fit(&self.model, &crop_image, &camera, &pts, vertices, &start, &self.photometric)
                     .map_err(fit_err)?;
                 let summary = PhotometricSummary {
                     iterations: p.iterations,
@@ -397,6 +411,7 @@ impl Pipeline {
                         let d = displacement::fit(
                             &self.model,
                             &crop_image,
+                            &camera,
                             &pts,
                             vertices,
                             &p.coefficients,
@@ -419,7 +434,7 @@ impl Pipeline {
             }
         };
         let fitted_landmarks = self
-            .project_vertices(&coefficients, &landmark_fit.vertices, crop)
+            .project_vertices(&camera, &coefficients, &landmark_fit.vertices, crop)
             .map_err(|e| FaceError::Fit(e.to_string()))?;
         let sq: f32 = fitted_landmarks
             .iter()
@@ -430,6 +445,7 @@ impl Pipeline {
         Ok(FaceFit {
             start: start_kind,
             refine,
+            camera,
             coefficients,
             landmark_fit,
             photometric,
@@ -439,9 +455,10 @@ impl Pipeline {
         })
     }
 
-    /// Model vertices under `c` projected into the image through the crop camera.
+    /// Model vertices under `c` projected into the image through the fit's camera.
     fn project_vertices(
         &self,
+        cam: &CropCamera,
         c: &Coefficients,
         vertices: &[u32],
         crop: &CropTransform,
@@ -449,7 +466,6 @@ impl Pipeline {
         let shape = self.model.shape(&c.identity, &c.expression, Extent::Face)?;
         let r = facerecon_model::scene::Pose::from_coefficients(c).matrix();
         let t = glam::Vec3::from(c.translation);
-        let cam = self.fitter.camera();
         Ok(vertices
             .iter()
             .map(|&v| {

@@ -2,6 +2,7 @@
 //! and the pictures (overlay, side-by-side). The displacement map's 16-bit PNG is
 //! `facerecon_model::displacement::to_png`.
 
+use facerecon_fit::camera::CropCamera;
 use facerecon_model::lit::LitFace;
 use facerecon_model::{Coefficients, DisplacementMap, Extent, Mesh, ModelError, MorphableModel};
 use facerecon_raster::{Camera, RenderError, RenderJob, cpu};
@@ -13,7 +14,7 @@ use crate::{FaceRecon, Reconstruction};
 /// Version tag of [`FaceRecord`]'s JSON layout.
 pub const RECORD_FORMAT: &str = "facerecon-fit/1";
 
-/// The fitted face-area mesh: camera space of the crop camera (mm), model albedo as vertex
+/// The fitted face-area mesh: camera space of the fit's camera (the photo's; mm), model albedo as vertex
 /// colours (shaded by the coefficients' light), normals and UVs; with a displacement map,
 /// the displaced surface and its normals.
 pub fn fitted_mesh(
@@ -62,8 +63,8 @@ pub struct FaceRecord {
     pub coefficients: Coefficients,
     /// Expression weights by name (ARKit names for ICT).
     pub expression_weights: Vec<(String, f32)>,
-    /// The camera of the coefficients: DESIGN §4's (fov 30°, aspect 1) looking at the
-    /// face's square crop of `crop_size` pixels; `crop` maps image pixels onto it.
+    /// The camera of the coefficients (the photo's); `crop` maps image pixels onto the
+    /// face's square crop of `crop_size` pixels, where the fit compared colours.
     pub camera: RecordCamera,
     pub crop: CropTransform,
     pub crop_size: u32,
@@ -80,11 +81,21 @@ pub struct FaceRecord {
     pub residuals: Residuals,
 }
 
+/// The pinhole camera of a record's coefficients, in the photo's pixels: DESIGN §4's
+/// camera over the whole photo (fov 30° over its height, optical axis through its centre),
+/// the same for every face of the photo.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct RecordCamera {
+    /// Vertical field of view over the photo's height.
     pub fov_y_deg: f32,
+    /// Clip planes around the face (they change no pixel position).
     pub near_mm: f32,
     pub far_mm: f32,
+    /// Pixels per unit of `X/w`: `x = cx + f·X/w`, `y = cy − f·Y/w`, `w = −Z`.
+    pub focal_px: f32,
+    /// `(cx, cy)`: where the optical axis meets the photo, pixels (0-based, pixel centres at
+    /// integers).
+    pub principal_point: [f32; 2],
 }
 
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
@@ -103,7 +114,9 @@ pub fn face_record(model: &MorphableModel, face: &FaceRecon) -> Option<FaceRecor
     let lb = face.face.landmark_box;
     let norm = (lb.width() * lb.height()).sqrt().max(1e-6);
     let names = &model.meta().expression_names;
-    let cam = Camera::default();
+    let cam = fit.camera.scene_camera(depth(c));
+    // The fit's camera in photo pixels: focal length and principal point.
+    let principal_point = face.crop.to_image(fit.camera.c.map(|v| v as f32));
     Some(FaceRecord {
         format: RECORD_FORMAT.into(),
         model: model.meta().name.clone(),
@@ -118,7 +131,13 @@ pub fn face_record(model: &MorphableModel, face: &FaceRecon) -> Option<FaceRecor
             .enumerate()
             .map(|(k, w)| (names.get(k).cloned().unwrap_or_else(|| format!("mode{k}")), *w))
             .collect(),
-        camera: RecordCamera { fov_y_deg: cam.fov_y.to_degrees(), near_mm: cam.near, far_mm: cam.far },
+        camera: RecordCamera {
+            fov_y_deg: facerecon_model::scene::FOV_Y_DEG,
+            near_mm: cam.near,
+            far_mm: cam.far,
+            focal_px: fit.camera.k as f32 / face.crop.scale,
+            principal_point,
+        },
         crop: face.crop,
         crop_size: CROP_SIZE,
         start: fit.start,
@@ -160,12 +179,17 @@ pub fn overlay(model: &MorphableModel, recon: &Reconstruction, opacity: f32) -> 
         // crop's pixels sit in the middle of the rendering.
         let side = (CROP_SIZE as f32 / face.crop.scale).round().clamp(16.0, MAX_RENDER_SIDE as f32) as u32;
         let full = (side as f32 * PAD).round() as u32;
-        let base = Camera::default();
-        let camera = Camera { fov_y: 2.0 * ((0.5 * base.fov_y).tan() * full as f32 / side as f32).atan(), ..base };
-        let frame = render_face(model, &lit, &colors, camera, full)?;
+        let zoom = side as f64 / CROP_SIZE as f64;
+        let camera = fit.camera.resampled(zoom, 0.5 * (full as f64 - side as f64), full);
+        let frame = render_face(model, &lit, &colors, camera.scene_camera(depth(&fit.coefficients)), full)?;
         blend(&mut out, &frame, &face.crop, side, full, opacity);
     }
     Ok(out)
+}
+
+/// The distance of a face, for the clip planes of its renderings.
+fn depth(c: &Coefficients) -> f64 {
+    -c.translation[2] as f64
 }
 
 /// The face area of `lit` with per-vertex `colors`, seen by `camera`, in a `size`² image:
@@ -241,24 +265,26 @@ fn blend(
 }
 
 /// The reconstruction (fitted albedo × SH shading) of a fitted face rendered into its crop
-/// frame (`CROP_SIZE`², the fit's camera), with the mask of the pixels inside the model's
+/// frame (`CROP_SIZE`², the fit's camera seen through the crop), with the mask of the pixels inside the model's
 /// narrow face region (the region the photometric fit compares).
 pub fn render_reconstruction(
     model: &MorphableModel,
     fit: &crate::FaceFit,
 ) -> Result<(facerecon_raster::Frame, Vec<bool>), RenderError> {
-    render_coefficients(model, &fit.coefficients, fit.displacement.as_ref().map(|d| &d.map))
+    render_coefficients(model, &fit.camera, &fit.coefficients, fit.displacement.as_ref().map(|d| &d.map))
 }
 
-/// [`render_reconstruction`] of coefficients (and a displacement map), without a fit.
+/// [`render_reconstruction`] of coefficients (and a displacement map) seen by `camera`,
+/// without a fit.
 pub fn render_coefficients(
     model: &MorphableModel,
+    camera: &CropCamera,
     c: &Coefficients,
     displacement: Option<&DisplacementMap>,
 ) -> Result<(facerecon_raster::Frame, Vec<bool>), RenderError> {
     let lit = lit_face(model, c, displacement).map_err(|e| RenderError::InvalidArgument(e.to_string()))?;
     let tris = model.extent_triangles(Extent::Face);
-    let frame = render_face(model, &lit, &lit.colors, Camera::default(), CROP_SIZE)?;
+    let frame = render_face(model, &lit, &lit.colors, camera.scene_camera(depth(c)), camera.size)?;
     let region = model.mask(facerecon_model::Mask::NarrowFace);
     let mask = (0..frame.visibility.triangle.len())
         .map(|i| {
@@ -289,7 +315,8 @@ pub fn side_by_side(model: &MorphableModel, recon: &Reconstruction) -> Result<Op
         let white = vec![[0.5f32; 3]; lit.positions.len()];
         let shading = facerecon_model::scene::shade(&white, &lit.normals, &fit.coefficients.light);
         let grey = shape_shading(&lit.normals);
-        let render = |colors: &[[f32; 3]]| render_face(model, &lit, colors, Camera::default(), s);
+        let camera = fit.camera.resampled(s as f64 / CROP_SIZE as f64, 0.0, s).scene_camera(depth(&fit.coefficients));
+        let render = |colors: &[[f32; 3]]| render_face(model, &lit, colors, camera, s);
         let tiles = [render(&lit.colors)?, render(&grey)?, render(&lit.albedo)?, render(&shading)?];
         let y0 = row as u32 * (s + 4);
         image::imageops::replace(&mut out, &photo, 0, y0 as i64);

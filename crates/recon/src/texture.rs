@@ -4,7 +4,7 @@
 //! parts hidden by the nose, texels seen at a grazing angle.
 //!
 //! Each face-area triangle is rasterised in UV space. A texel's surface point is projected
-//! through the crop camera into the photo; it counts as visible when the face's own
+//! through the fit's camera into the photo; it counts as visible when the face's own
 //! visibility buffer (rendered at about the face's size in the photo) shows the same surface
 //! there (within [`DEPTH_TOLERANCE_MM`]) and the surface faces the camera. Photo colours are
 //! sampled bilinearly at full resolution. Charts are padded by a few texels so that
@@ -56,10 +56,13 @@ pub fn face_texture(
         .map_err(|e| RenderError::InvalidArgument(e.to_string()))?;
     let tris = model.extent_triangles(Extent::Face);
     let uvs = &model.vertex_uvs()[..lit.positions.len()];
-    let camera = Camera::default();
-
-    // The visibility buffer at about the face's size in the photo (the crop camera's view).
+    // The visibility buffer at about the face's size in the photo (the fit's camera through
+    // the crop, resampled).
     let side = (CROP_SIZE as f32 / face.crop.scale).round().clamp(64.0, 1024.0) as u32;
+    let camera = fit
+        .camera
+        .resampled(side as f64 / CROP_SIZE as f64, 0.0, side)
+        .scene_camera(-fit.coefficients.translation[2] as f64);
     let vb = cpu::rasterize(&RenderJob {
         positions: &lit.positions,
         triangles: tris,

@@ -40,10 +40,15 @@ fn the_encoder_starts_each_face_and_coarse_refines_from_it() {
     assert!(matches!(r.faces[0].fit, Err(FaceError::TooSmall { .. })));
     let fit = r.faces[1].fit.as_ref().unwrap();
     assert_eq!((fit.start, fit.refine), (Start::Encoder, Refine::None));
-    // The answer is the encoder's on the face's own crop.
+    // The answer is the encoder's on the face's own crop, its pose moved from the crop's
+    // camera (the encoder's frame) into the photo's.
     let crop = facerecon_vision::crop::crop_face(&r.image, &r.faces[1].face.landmark_box);
     let direct = encoder.encode(&CropBatch::from_crops([&crop]).unwrap()).unwrap();
-    assert_eq!(fit.coefficients, direct[0]);
+    let mut moved = direct[0].clone();
+    fit.camera.transfer_pose(&facerecon_fit::camera::CropCamera::crop(), &mut moved);
+    assert_eq!(fit.coefficients, moved);
+    assert_eq!(fit.coefficients.identity, direct[0].identity);
+    assert_ne!(fit.coefficients.translation, direct[0].translation);
     assert!(fit.photometric.is_none());
 
     let refined = Options { start: Start::Encoder, refine: Refine::Coarse, faces, ..Default::default() };

@@ -184,7 +184,7 @@ fn the_texture_carries_the_photo_onto_the_mesh() {
         &mesh.triangles,
         mesh.uvs.as_ref().unwrap(),
         &t.image,
-        facerecon_raster::Camera::default(),
+        fit.camera.scene_camera(-fit.coefficients.translation[2] as f64),
         224,
     )
     .unwrap();

@@ -105,12 +105,12 @@ impl GeometryDecoder {
 
     /// Crop pixels `[N, V, 2]` of camera-space points (pixel centres at integers, y down).
     pub fn project(&self, points: Tensor<3>) -> Tensor<3> {
-        let (k, c) = (self.camera.k as f32, self.camera.c as f32);
+        let (k, [cx, cy]) = (self.camera.k as f32, self.camera.c.map(|v| v as f32));
         let x = points.clone().narrow(2, 0, 1);
         let y = points.clone().narrow(2, 1, 1);
         // w = −Z, kept ≥ 1 mm so a wild early prediction cannot divide by zero.
         let w = points.narrow(2, 2, 1).neg().clamp_min(1.0);
-        Tensor::cat(vec![x / w.clone() * k + c, (y / w * k).neg() + c], 2)
+        Tensor::cat(vec![x / w.clone() * k + cx, (y / w * k).neg() + cy], 2)
     }
 
     /// The landmarks of [`Self::project`]'s output.

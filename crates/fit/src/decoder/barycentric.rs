@@ -10,22 +10,32 @@
 use facerecon_model::scene::Camera;
 use glam::DVec3;
 
-/// The camera's clip-space scale factors (computed once: `focal` is a tangent).
+/// The camera's clip-space scale factors and lens shift (computed once: `focal` is a
+/// tangent).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Clip {
     fx: f64,
     fy: f64,
+    cx: f64,
+    cy: f64,
 }
 
 impl Clip {
     pub fn new(camera: &Camera) -> Self {
         let f = camera.focal() as f64;
-        Clip { fx: f / camera.aspect as f64, fy: f }
+        let [cx, cy] = camera.center.map(|c| c as f64);
+        Clip { fx: f / camera.aspect as f64, fy: f, cx, cy }
     }
 
-    /// The clip-space `(x, y, w)` of a camera-space point.
+    /// The clip-space `(x, y, w)` of a camera-space point (`w = −Z`).
     fn of(&self, p: DVec3) -> DVec3 {
-        DVec3::new(self.fx * p.x, self.fy * p.y, -p.z)
+        let w = -p.z;
+        DVec3::new(self.fx * p.x + self.cx * w, self.fy * p.y + self.cy * w, w)
+    }
+
+    /// The transpose of [`Self::of`]'s (linear) map: a clip-space gradient → camera space.
+    fn back(&self, g: DVec3) -> DVec3 {
+        DVec3::new(self.fx * g.x, self.fy * g.y, -(g.z + self.cx * g.x + self.cy * g.y))
     }
 }
 
@@ -62,5 +72,5 @@ pub fn vjp(clip: &Clip, s: DVec3, p: [DVec3; 3], g: [f64; 3]) -> [DVec3; 3] {
         gc[j] += c[k].cross(s) * ge[i];
         gc[k] += s.cross(c[j]) * ge[i];
     }
-    gc.map(|g| DVec3::new(clip.fx * g.x, clip.fy * g.y, -g.z))
+    gc.map(|g| clip.back(g))
 }

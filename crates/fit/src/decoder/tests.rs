@@ -283,6 +283,12 @@ fn chained_decoder_vjp() {
 #[test]
 fn barycentric_vjp_and_agreement_with_the_rasteriser() {
     let cam = facerecon_model::scene::Camera::default();
+    barycentrics_against_the_rasteriser(cam);
+    // An off-axis camera, as a face's window of a larger photo sees it.
+    barycentrics_against_the_rasteriser(facerecon_model::scene::Camera { center: [0.3, -0.2], fov_y: 0.4, ..cam });
+}
+
+fn barycentrics_against_the_rasteriser(cam: facerecon_model::scene::Camera) {
     let clip = barycentric::Clip::new(&cam);
     let mut rng = Lcg(8);
     // A triangle 450 mm in front of the camera, filling part of a 64² image.
