@@ -210,11 +210,15 @@ pub struct Pipeline {
     pub photometric: PhotometricSettings,
     pub displacement: DisplacementSettings,
     encoder: Option<Arc<dyn Encoder>>,
+    /// The mean face's landmark centroid, model space: where a pose moved between cameras
+    /// is anchored ([`CropCamera::transfer_pose`]).
+    face_centre: glam::DVec3,
 }
 
 impl Pipeline {
     pub fn new(model: Arc<MorphableModel>, front: FrontEnd) -> Result<Self, FitError> {
         let fitter = LandmarkFitter::new(&model)?;
+        let face_centre = Self::landmark_centroid(&model);
         Ok(Pipeline {
             model,
             front: front.with_crops(false),
@@ -223,7 +227,25 @@ impl Pipeline {
             photometric: PhotometricSettings::default(),
             displacement: DisplacementSettings::default(),
             encoder: None,
+            face_centre,
         })
+    }
+
+    fn landmark_centroid(model: &MorphableModel) -> glam::DVec3 {
+        let mean = model.mean_shape();
+        let points: Vec<glam::DVec3> = model
+            .landmarks()
+            .iter()
+            .filter_map(|&v| mean.get(v as usize))
+            .map(|p| glam::Vec3::from(*p).as_dvec3())
+            .collect();
+        points.iter().sum::<glam::DVec3>() / points.len().max(1) as f64
+    }
+
+    /// Moves coefficients from the encoder's frame (the camera on the crop itself) into
+    /// `camera`'s, as the pipeline does with the encoder's answer.
+    pub fn move_encoder_pose(&self, camera: &CropCamera, c: &mut Coefficients) {
+        camera.transfer_pose(&CropCamera::crop(), c, self.face_centre);
     }
 
     /// Loads the encoder [`Start::Encoder`] uses. Its coefficient layout must be the model's.
@@ -387,7 +409,7 @@ impl Pipeline {
         let start = match start {
             // The encoder answers in the crop's own camera (its training frame).
             Some(mut c) => {
-                camera.transfer_pose(&CropCamera::crop(), &mut c);
+                self.move_encoder_pose(&camera, &mut c);
                 c
             }
             None => landmark_fit.coefficients.clone(),

@@ -45,7 +45,7 @@ fn the_encoder_starts_each_face_and_coarse_refines_from_it() {
     let crop = facerecon_vision::crop::crop_face(&r.image, &r.faces[1].face.landmark_box);
     let direct = encoder.encode(&CropBatch::from_crops([&crop]).unwrap()).unwrap();
     let mut moved = direct[0].clone();
-    fit.camera.transfer_pose(&facerecon_fit::camera::CropCamera::crop(), &mut moved);
+    p.move_encoder_pose(&fit.camera, &mut moved);
     assert_eq!(fit.coefficients, moved);
     assert_eq!(fit.coefficients.identity, direct[0].identity);
     assert_ne!(fit.coefficients.translation, direct[0].translation);
