@@ -11,7 +11,7 @@
 //!         [--buckets 0,1,2,3] [--sigma S] [--lambda-id L] [--lambda-exp L] [--coarse [--iterations N]] \
 //!         [--full [--smooth λ] [--lr mm]] [--optimiser adam|lm] [--ph-lambda-id λ] [--ph-lambda-exp λ] \
 //!         [--encoder WEIGHTS] [--occlude] [--no-skin-mask] [--map-skin-mask] [--skin-sigmas K] \
-//!         [--max-image-side PX]
+//!         [--max-image-side PX] [--truth-start]
 //!
 //! `--coarse` adds the photometric fit started from the exact landmarks' landmark fit;
 //! `--full` the displacement map on it too (the coarse figure then comes from the same run).
@@ -20,6 +20,8 @@
 //! `--map-skin-mask` turns the displacement stage's on.
 //! `--max-image-side PX` caps the drawn photo size (default 1024): small photos around a face
 //! give it strong perspective, large ones weak.
+//! `--truth-start` adds the coarse fit started from the ground truth's own coefficients:
+//! where the fit's objective settles near the answer (a floor no start can beat).
 //! `--encoder W` adds the learned encoder (ONNX Runtime, weights file W) on the same crop
 //! (from the exact landmarks): alone, and refined by the coarse fit, with seconds per face.
 
@@ -63,6 +65,11 @@ struct Row {
     coarse_info: Vec<[f64; 3]>,
     /// The coarse fit with its displacement map.
     full: Vec<[f64; 2]>,
+    /// The coarse fit started from the ground truth itself (`--truth-start`): where the
+    /// fit's own objective settles near the answer, whatever the start.
+    from_truth_start: Vec<[f64; 2]>,
+    /// Its loss, first and last iteration.
+    truth_start_loss: Vec<[f64; 2]>,
     /// The encoder alone, and encoder + coarse fit (with seconds per face of each).
     encoder: Vec<[f64; 2]>,
     encoder_coarse: Vec<[f64; 2]>,
@@ -77,6 +84,7 @@ fn main() {
     let mut settings = facerecon_fit::LandmarkFitSettings::default();
     let mut buckets: Vec<u8> = vec![0, 1, 2, 3];
     let mut coarse = false;
+    let mut truth_start = false;
     let mut max_image_side = SynthConfig::default().max_image_side;
     let mut full = false;
     let mut iterations: Option<usize> = None;
@@ -89,6 +97,10 @@ fn main() {
         if a == "--coarse" || a == "--full" {
             coarse = true;
             full |= a == "--full";
+            continue;
+        }
+        if a == "--truth-start" {
+            truth_start = true;
             continue;
         }
         if a == "--occlude" {
@@ -201,6 +213,32 @@ fn main() {
                         row.full.push(errors(&model, &f.coefficients, Some(&d.map), &truth));
                     }
                 }
+                if truth_start {
+                    let lbox = FaceBox::of_points(exact.iter().copied()).expect("box");
+                    let cr = facerecon_vision::crop::crop_face(&s.image, &lbox);
+                    let camera = facerecon_fit::camera::CropCamera::of_photo(
+                        s.image.width(),
+                        s.image.height(),
+                        &cr.transform,
+                        facerecon_vision::crop::CROP_SIZE,
+                    );
+                    let pts: Vec<[f32; 2]> = exact.iter().map(|p| cr.transform.to_crop(*p)).collect();
+                    if let Ok(lf) = pipeline.fitter().fit(&camera, &pts, None)
+                        && let Ok(p) = facerecon_fit::photometric::fit(
+                            &model,
+                            &cr.image,
+                            &camera,
+                            &pts,
+                            &lf.vertices,
+                            c,
+                            &pipeline.photometric,
+                        )
+                    {
+                        row.from_truth_start.push(both(&p.coefficients));
+                        let first = p.losses.first().copied().unwrap_or(f64::NAN);
+                        row.truth_start_loss.push([first, p.losses.last().copied().unwrap_or(f64::NAN)]);
+                    }
+                }
                 if encoder.is_some() {
                     let mut seconds = [0.0; 2];
                     for (k, refine) in [Refine::None, Refine::Coarse].into_iter().enumerate() {
@@ -274,6 +312,16 @@ fn main() {
                 secs.iter().map(|x| x[0]).sum::<f64>() / n,
                 fmt(all(|r| &r.encoder_coarse)),
                 secs.iter().map(|x| x[1]).sum::<f64>() / n,
+            );
+        }
+        if truth_start {
+            let l: Vec<[f64; 2]> = rows.iter().flat_map(|r| r.truth_start_loss.iter().copied()).collect();
+            let n = l.len().max(1) as f64;
+            println!(
+                "  bucket {bucket}: coarse fit started from the truth: {} — loss {:.2} → {:.2}",
+                fmt(all(|r| &r.from_truth_start)),
+                l.iter().map(|x| x[0]).sum::<f64>() / n,
+                l.iter().map(|x| x[1]).sum::<f64>() / n
             );
         }
         if full {

@@ -1,7 +1,8 @@
 //! Renders a textured `.glb` as `facerecon fit` writes it, read back by the `gltf` crate
 //! (an independent parser): positions, UVs, triangles and the embedded base-colour texture,
-//! seen from the fit's camera position with a 25 % wider view, turned about the face's
-//! centre by each yaw, in a row.
+//! turned about the face's centre by each yaw and seen straight on from a distance where it
+//! fills the view (the mesh is in the photo camera's space, where a face may be small and
+//! off-axis), in a row.
 //!
 //!     cargo run --release -p facerecon-recon --example render_glb -- FACE.glb OUT.png [YAW_DEG …]
 
@@ -35,13 +36,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 
     let centre = positions.iter().map(|p| Vec3::from(*p)).sum::<Vec3>() / positions.len().max(1) as f32;
     let size = 512;
-    let base = Camera::default();
-    let camera = Camera { fov_y: 2.0 * ((0.5 * base.fov_y).tan() * 1.25).atan(), ..base };
+    let camera = Camera::default();
+    let radius = positions.iter().map(|p| (Vec3::from(*p) - centre).length()).fold(0.0f32, f32::max);
+    let view_centre = Vec3::new(0.0, 0.0, -1.1 * radius * camera.focal());
     let mut row = image::RgbImage::from_pixel(size * yaws.len() as u32, size, image::Rgb([255, 255, 255]));
     for (k, yaw) in yaws.iter().enumerate() {
         let r = Mat3::from_rotation_y(yaw.to_radians());
         let turned: Vec<[f32; 3]> =
-            positions.iter().map(|p| (r * (Vec3::from(*p) - centre) + centre).to_array()).collect();
+            positions.iter().map(|p| (r * (Vec3::from(*p) - centre) + view_centre).to_array()).collect();
         let view = texture::render_textured(&turned, &triangles, &uvs, &image, camera, size)?;
         image::imageops::replace(&mut row, &view, (k as u32 * size) as i64, 0);
     }
