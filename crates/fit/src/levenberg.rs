@@ -9,8 +9,10 @@
 //! the curvature comes from every `stride`-th pixel (scaled back up) and the 68 landmarks.
 //! Its Jacobian rows follow a pixel's colour through its triangle's three corners: albedo
 //! and light through the shaded vertex colours, shape and pose through the corners'
-//! positions (the barycentric VJP). The dependence of the normals on the shape is left out
-//! of the curvature, as Gauss–Newton fits of 3DMMs usually do; it stays in the gradient.
+//! positions (the barycentric VJP), and through its corners' normals to the positions of
+//! the triangles around them (shading is how a photo shows shape; without this path the
+//! curvature saw shape only through the pixels' positions, and shape converged slowly:
+//! decision 0703, "The normals in the curvature").
 //!
 //! A step `(H + μ·diag(H)) δ = −g` is taken when it lowers the loss on the same footprint;
 //! otherwise `μ` grows and the step is tried again. Each attempt counts as an iteration.
@@ -24,7 +26,7 @@ use image::RgbImage;
 use nalgebra::{DMatrix, DVector};
 
 use crate::camera::CropCamera;
-use crate::decoder::{barycentric, pose, project};
+use crate::decoder::{barycentric, normals, pose, project};
 use crate::error::FitError;
 use crate::photometric::{Footprint, Forward, Objective, PhotometricFit, PhotometricSettings};
 
@@ -136,6 +138,16 @@ fn curvature(objective: &Objective, f: &Forward, fp: &Footprint) -> Result<DMatr
             row[l.translation().start + k] += g[k];
         }
     };
+    // Shading reaches the shape through the normals: `n_v = m_v/‖m_v‖`, `m_v` the sum of
+    // the cross products of the triangles around `v` (`normals`).
+    let m_len: Vec<f64> = normals::accumulate(&f.points, t.triangles).iter().map(|m| m.length()).collect();
+    // Camera-space gradients per vertex of one row, summed before the (costly) path
+    // through the bases: a pixel reaches its corners' one-rings, which overlap.
+    let mut by_vertex: Vec<(usize, DVec3)> = Vec::with_capacity(32);
+    let add = |acc: &mut Vec<(usize, DVec3)>, v: usize, g: DVec3| match acc.iter_mut().find(|(u, _)| *u == v) {
+        Some((_, s)) => *s += g,
+        None => acc.push((v, g)),
+    };
     let mut row = vec![0.0; n];
     let mut r_i = 0;
     for (pix, corners) in rows_px {
@@ -151,9 +163,26 @@ fn curvature(objective: &Objective, f: &Forward, fp: &Footprint) -> Result<DMatr
         let d = value - t.colors[*pix];
         for c in 0..3 {
             row.iter_mut().for_each(|v| *v = 0.0);
+            by_vertex.clear();
             for (k, &v) in tri.iter().enumerate() {
-                let (phi, _) = sh_basis_jacobian_f64(f.normals[v].to_array());
+                let (phi, dphi) = sh_basis_jacobian_f64(f.normals[v].to_array());
                 let shade: f64 = (0..SH_COEFFS).map(|m| f.light[m][c] * phi[m]).sum();
+                // d colour / d n_v, then through the normalisation and the cross products of
+                // the triangles around v to their corners' positions.
+                let g_n = (0..SH_COEFFS).map(|m| DVec3::from(dphi[m]) * f.light[m][c]).sum::<DVec3>()
+                    * (b[k] * f.albedo[v][c]);
+                let nv = f.normals[v];
+                if m_len[v] > 0.0 && m_len[v].is_finite() {
+                    let gm = (g_n - nv * nv.dot(g_n)) / m_len[v];
+                    for &ti in &t.vertex_triangles[v] {
+                        let [a0, b0, c0] = t.triangles[ti as usize].map(|i| i as usize);
+                        let (e1, e2) = (f.points[b0] - f.points[a0], f.points[c0] - f.points[a0]);
+                        let (g1, g2) = (e2.cross(gm), gm.cross(e1));
+                        add(&mut by_vertex, a0, -(g1 + g2));
+                        add(&mut by_vertex, b0, g1);
+                        add(&mut by_vertex, c0, g2);
+                    }
+                }
                 for (m, rm) in row[l.albedo()].iter_mut().enumerate() {
                     *rm += b[k] * shade * model.albedo_mode(m)[..nf][v][c] as f64;
                 }
@@ -164,7 +193,10 @@ fn curvature(objective: &Objective, f: &Forward, fp: &Footprint) -> Result<DMatr
             let gb = [f.colors[tri[0]][c], f.colors[tri[1]][c], f.colors[tri[2]][c]];
             let gp = barycentric::vjp(&t.clip, ray, cp, gb);
             for (k, &v) in tri.iter().enumerate() {
-                position_path(&mut row, v, gp[k]);
+                add(&mut by_vertex, v, gp[k]);
+            }
+            for (v, g) in by_vertex.drain(..) {
+                position_path(&mut row, v, g);
             }
             let w = (pixel_weight / d[c].abs().max(IRLS_FLOOR)).sqrt();
             for (i, v) in row.iter().enumerate() {

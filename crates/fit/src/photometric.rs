@@ -88,7 +88,7 @@ impl Default for PhotometricSettings {
             skin_mask: true,
             skin_sigmas: 5.0,
             sigma_ph: 0.043,
-            iterations: 45,
+            iterations: 40,
             time_budget: Duration::from_secs(10),
             raster_every: 2,
             lr_coefficients: 0.03,
@@ -162,6 +162,8 @@ pub(crate) struct Target<'a> {
     /// Per vertex: eyes and mouth, kept whatever their colour (they are the face's, and
     /// not skin-coloured).
     pub(crate) features: Vec<bool>,
+    /// Per vertex: the triangles around it (a vertex's normal depends on their corners).
+    pub(crate) vertex_triangles: Vec<Vec<u32>>,
 }
 
 impl<'a> Target<'a> {
@@ -202,6 +204,18 @@ impl<'a> Target<'a> {
             landmarks,
             landmark_vertices,
             skin: None,
+            vertex_triangles: {
+                let tris = model.extent_triangles(Extent::Face);
+                let mut around = vec![Vec::new(); nv];
+                for (k, t) in tris.iter().enumerate() {
+                    for &v in t {
+                        if let Some(a) = around.get_mut(v as usize) {
+                            a.push(k as u32);
+                        }
+                    }
+                }
+                around
+            },
             features: {
                 let (eyes, mouth) = (model.mask(facerecon_model::Mask::Eyes), model.mask(facerecon_model::Mask::Mouth));
                 eyes.iter().zip(mouth).map(|(e, m)| *e != 0 || *m != 0).collect()

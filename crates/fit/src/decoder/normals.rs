@@ -3,7 +3,8 @@
 
 use glam::DVec3;
 
-fn accumulate(p: &[DVec3], tris: &[[u32; 3]]) -> Vec<DVec3> {
+/// The unnormalised normals `m_i` (twice the area-weighted sum of face normals).
+pub(crate) fn accumulate(p: &[DVec3], tris: &[[u32; 3]]) -> Vec<DVec3> {
     let mut m = vec![DVec3::ZERO; p.len()];
     for t in tris {
         let [a, b, c] = t.map(|i| i as usize);
