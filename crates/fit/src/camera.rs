@@ -19,6 +19,12 @@ use facerecon_model::scene::Camera;
 use facerecon_vision::crop::CropTransform;
 use glam::{DQuat, DVec3};
 
+/// How far the face of `c` is from the camera along the view axis, mm (where the clip planes
+/// of its renderings go).
+pub fn distance(c: &Coefficients) -> f64 {
+    -c.translation[2] as f64
+}
+
 /// Projection of camera-space points (mm) onto a square image of `size` pixels.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CropCamera {
@@ -80,6 +86,11 @@ impl CropCamera {
     /// The camera-space point at distance `w` whose pixel is `q`.
     pub fn unproject(&self, q: [f64; 2], w: f64) -> DVec3 {
         DVec3::new((q[0] - self.c[0]) * w / self.k, -(q[1] - self.c[1]) * w / self.k, -w)
+    }
+
+    /// [`Self::scene_camera`] with the clip planes around the face of `c`.
+    pub fn scene_camera_for(&self, c: &Coefficients) -> Camera {
+        self.scene_camera(distance(c))
     }
 
     /// The scene camera that renders this camera's `size`² image, its clip planes around a

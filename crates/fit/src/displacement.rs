@@ -98,7 +98,7 @@ pub fn fit(
     if coefficients.layout() != model.layout() {
         return Err(FitError::Model("coefficients do not match the model".into()));
     }
-    let depth = -coefficients.translation[2] as f64;
+    let depth = crate::camera::distance(coefficients);
     let mut target = Target::new(model, crop, camera, depth, landmarks, landmark_vertices)?;
     let mut map = DisplacementMap::zeros(settings.size).map_err(FitError::Evaluate)?;
     let nv = model.extent_vertices(Extent::Face);

@@ -482,8 +482,8 @@ impl<'a> Objective<'a> {
         if start.layout() != model.layout() {
             return Err(FitError::Model("start coefficients do not match the model".into()));
         }
-        let depth = -start.translation[2] as f64;
-        let mut objective = Self::new(model, crop, camera, depth, landmarks, landmark_vertices, settings)?;
+        let mut objective =
+            Self::new(model, crop, camera, crate::camera::distance(start), landmarks, landmark_vertices, settings)?;
         let x = objective.layout.flatten(start);
         if settings.skin_mask {
             let points = objective.forward(&x)?.points;

@@ -114,7 +114,7 @@ pub fn face_record(model: &MorphableModel, face: &FaceRecon) -> Option<FaceRecor
     let lb = face.face.landmark_box;
     let norm = (lb.width() * lb.height()).sqrt().max(1e-6);
     let names = &model.meta().expression_names;
-    let cam = fit.camera.scene_camera(depth(c));
+    let cam = fit.camera.scene_camera_for(c);
     // The fit's camera in photo pixels: focal length and principal point.
     let principal_point = face.crop.to_image(fit.camera.c.map(|v| v as f32));
     Some(FaceRecord {
@@ -181,15 +181,10 @@ pub fn overlay(model: &MorphableModel, recon: &Reconstruction, opacity: f32) -> 
         let full = (side as f32 * PAD).round() as u32;
         let zoom = side as f64 / CROP_SIZE as f64;
         let camera = fit.camera.resampled(zoom, 0.5 * (full as f64 - side as f64), full);
-        let frame = render_face(model, &lit, &colors, camera.scene_camera(depth(&fit.coefficients)), full)?;
+        let frame = render_face(model, &lit, &colors, camera.scene_camera_for(&fit.coefficients), full)?;
         blend(&mut out, &frame, &face.crop, side, full, opacity);
     }
     Ok(out)
-}
-
-/// The distance of a face, for the clip planes of its renderings.
-fn depth(c: &Coefficients) -> f64 {
-    -c.translation[2] as f64
 }
 
 /// The face area of `lit` with per-vertex `colors`, seen by `camera`, in a `size`² image:
@@ -284,7 +279,7 @@ pub fn render_coefficients(
 ) -> Result<(facerecon_raster::Frame, Vec<bool>), RenderError> {
     let lit = lit_face(model, c, displacement).map_err(|e| RenderError::InvalidArgument(e.to_string()))?;
     let tris = model.extent_triangles(Extent::Face);
-    let frame = render_face(model, &lit, &lit.colors, camera.scene_camera(depth(c)), camera.size)?;
+    let frame = render_face(model, &lit, &lit.colors, camera.scene_camera_for(c), camera.size)?;
     let region = model.mask(facerecon_model::Mask::NarrowFace);
     let mask = (0..frame.visibility.triangle.len())
         .map(|i| {
@@ -315,7 +310,7 @@ pub fn side_by_side(model: &MorphableModel, recon: &Reconstruction) -> Result<Op
         let white = vec![[0.5f32; 3]; lit.positions.len()];
         let shading = facerecon_model::scene::shade(&white, &lit.normals, &fit.coefficients.light);
         let grey = shape_shading(&lit.normals);
-        let camera = fit.camera.resampled(s as f64 / CROP_SIZE as f64, 0.0, s).scene_camera(depth(&fit.coefficients));
+        let camera = fit.camera.resampled(s as f64 / CROP_SIZE as f64, 0.0, s).scene_camera_for(&fit.coefficients);
         let render = |colors: &[[f32; 3]]| render_face(model, &lit, colors, camera, s);
         let tiles = [render(&lit.colors)?, render(&grey)?, render(&lit.albedo)?, render(&shading)?];
         let y0 = row as u32 * (s + 4);

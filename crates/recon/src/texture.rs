@@ -59,10 +59,7 @@ pub fn face_texture(
     // The visibility buffer at about the face's size in the photo (the fit's camera through
     // the crop, resampled).
     let side = (CROP_SIZE as f32 / face.crop.scale).round().clamp(64.0, 1024.0) as u32;
-    let camera = fit
-        .camera
-        .resampled(side as f64 / CROP_SIZE as f64, 0.0, side)
-        .scene_camera(-fit.coefficients.translation[2] as f64);
+    let camera = fit.camera.resampled(side as f64 / CROP_SIZE as f64, 0.0, side).scene_camera_for(&fit.coefficients);
     let vb = cpu::rasterize(&RenderJob {
         positions: &lit.positions,
         triangles: tris,

@@ -184,7 +184,7 @@ fn the_texture_carries_the_photo_onto_the_mesh() {
         &mesh.triangles,
         mesh.uvs.as_ref().unwrap(),
         &t.image,
-        fit.camera.scene_camera(-fit.coefficients.translation[2] as f64),
+        fit.camera.scene_camera_for(&fit.coefficients),
         224,
     )
     .unwrap();
