@@ -50,6 +50,12 @@ fn errors(
     [Metric::PointToPlane, Metric::PointToPoint].map(|m| shape_error::error(model, &p, truth, m))
 }
 
+/// Column means of rows of `N` figures (zeros when there are none).
+fn means<const N: usize>(v: &[[f64; N]]) -> [f64; N] {
+    let n = v.len().max(1) as f64;
+    std::array::from_fn(|k| v.iter().map(|x| x[k]).sum::<f64>() / n)
+}
+
 #[derive(Default, Clone)]
 struct Row {
     mean_face: Vec<[f64; 2]>,
@@ -291,37 +297,33 @@ fn main() {
         let found = all(|r| &r.from_photo).len();
         if coarse {
             let info: Vec<[f64; 3]> = rows.iter().flat_map(|r| r.coarse_info.iter().copied()).collect();
-            let n = info.len().max(1) as f64;
+            let [seconds, first, last] = means(&info);
             let albedo: Vec<f64> = rows.iter().flat_map(|r| r.coarse_albedo.iter().copied()).collect();
             println!(
                 "  bucket {bucket}: coarse fit from the exact landmarks' fit: {} — albedo error {:.4} — {:.2} s per face, loss {:.2} → {:.2} (means of {} faces)",
                 fmt(all(|r| &r.coarse)),
                 albedo.iter().sum::<f64>() / albedo.len().max(1) as f64,
-                info.iter().map(|x| x[0]).sum::<f64>() / n,
-                info.iter().map(|x| x[1]).sum::<f64>() / n,
-                info.iter().map(|x| x[2]).sum::<f64>() / n,
+                seconds,
+                first,
+                last,
                 info.len()
             );
         }
         if encoder.is_some() {
-            let secs: Vec<[f64; 2]> = rows.iter().flat_map(|r| r.encoder_seconds.iter().copied()).collect();
-            let n = secs.len().max(1) as f64;
+            let secs = means(&all(|r| &r.encoder_seconds));
             println!(
                 "  bucket {bucket}: encoder alone: {} — {:.3} s per face; encoder + coarse fit: {} — {:.2} s per face",
                 fmt(all(|r| &r.encoder)),
-                secs.iter().map(|x| x[0]).sum::<f64>() / n,
+                secs[0],
                 fmt(all(|r| &r.encoder_coarse)),
-                secs.iter().map(|x| x[1]).sum::<f64>() / n,
+                secs[1],
             );
         }
         if truth_start {
-            let l: Vec<[f64; 2]> = rows.iter().flat_map(|r| r.truth_start_loss.iter().copied()).collect();
-            let n = l.len().max(1) as f64;
+            let [first, last] = means(&all(|r| &r.truth_start_loss));
             println!(
-                "  bucket {bucket}: coarse fit started from the truth: {} — loss {:.2} → {:.2}",
+                "  bucket {bucket}: coarse fit started from the truth: {} — loss {first:.2} → {last:.2}",
                 fmt(all(|r| &r.from_truth_start)),
-                l.iter().map(|x| x[0]).sum::<f64>() / n,
-                l.iter().map(|x| x[1]).sum::<f64>() / n
             );
         }
         if full {
