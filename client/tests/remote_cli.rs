@@ -25,6 +25,18 @@ fn facerecon(args: &[&str], paths: &[&Path]) -> std::process::Output {
     c.output().unwrap()
 }
 
+/// [`facerecon`] off the runtime's threads (the server under test runs on them).
+async fn facerecon_off_runtime(args: Vec<String>, paths: &[PathBuf]) -> std::process::Output {
+    let paths = paths.to_vec();
+    tokio::task::spawn_blocking(move || {
+        let a: Vec<&str> = args.iter().map(|a| a.as_str()).collect();
+        let p: Vec<&Path> = paths.iter().map(|p| p.as_path()).collect();
+        facerecon(&a, &p)
+    })
+    .await
+    .unwrap()
+}
+
 fn sorted_files(dir: &Path) -> Vec<String> {
     let mut v: Vec<String> =
         std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
@@ -37,16 +49,8 @@ async fn reconstruct_writes_the_files_fit_writes() {
     let s = TestServer::start(Config::default()).await;
     let pics = photos(2);
     let (remote, local) = (tmp("reconstruct"), tmp("fit"));
-    let url = s.url();
-    let out = tokio::task::spawn_blocking({
-        let (pics, remote) = (pics.clone(), remote.clone());
-        move || {
-            let p: Vec<&Path> = pics.iter().map(|p| p.as_path()).collect();
-            facerecon(&["reconstruct", "--refine", "full", "--server", &url, "-o", remote.to_str().unwrap()], &p)
-        }
-    })
-    .await
-    .unwrap();
+    let args = ["reconstruct", "--refine", "full", "--server", &s.url(), "-o", remote.to_str().unwrap()];
+    let out = facerecon_off_runtime(args.map(String::from).to_vec(), &pics).await;
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let p: Vec<&Path> = pics.iter().map(|p| p.as_path()).collect();
     let out = facerecon(&["fit", "--refine", "full", "-o", local.to_str().unwrap()], &p);
@@ -146,16 +150,8 @@ async fn reconstruct_can_start_from_the_servers_encoder() {
     s.wait_serving(std::time::Duration::from_secs(120)).await;
     let pics = photos(1);
     let out_dir = tmp("encoder");
-    let url = s.url();
-    let out = tokio::task::spawn_blocking({
-        let (pics, out_dir) = (pics.clone(), out_dir.clone());
-        move || {
-            let p: Vec<&Path> = pics.iter().map(|p| p.as_path()).collect();
-            facerecon(&["reconstruct", "--start", "encoder", "--server", &url, "-o", out_dir.to_str().unwrap()], &p)
-        }
-    })
-    .await
-    .unwrap();
+    let args = ["reconstruct", "--start", "encoder", "--server", &s.url(), "-o", out_dir.to_str().unwrap()];
+    let out = facerecon_off_runtime(args.map(String::from).to_vec(), &pics).await;
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let record = sorted_files(&out_dir).into_iter().find(|f| f.ends_with("-face1.json")).expect("a face record");
     let json: serde_json::Value = serde_json::from_slice(&std::fs::read(out_dir.join(record)).unwrap()).unwrap();
