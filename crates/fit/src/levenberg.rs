@@ -118,18 +118,27 @@ fn curvature(objective: &Objective, f: &Forward, fp: &Footprint) -> Result<DMatr
     let stride = fp.len().div_ceil(CURVATURE_PIXELS).max(1);
     let rows_px: Vec<&(usize, [(u32, f64); 3])> = fp.iter().step_by(stride).collect();
     let pixel_weight = st.lambda_ph / st.sigma_ph / fp.len() as f64 * stride as f64;
-    let mut j = DMatrix::<f64>::zeros(3 * rows_px.len() + 2 * t.landmark_vertices.len(), n);
+    // Jᵀ, one column per residual (a row of J is then contiguous).
+    let mut jt = DMatrix::<f64>::zeros(n, 3 * rows_px.len() + 2 * t.landmark_vertices.len());
     let r = pose::rotation(f.rotation);
     let rt = r.transpose();
     let dr = pose::rotation_derivatives(f.rotation);
     let nf = model.extent_vertices(Extent::Face);
+    // The bases vertex-major: a vertex's part of a row is a few contiguous axpys.
+    let (sb, ab) = (model.face_shape_by_vertex(), model.face_albedo_by_vertex());
+    let (ks, ka) = (sb.modes(), ab.modes());
+    if ks != l.shape().len() || ka != l.albedo().len() || sb.vertices() < nf || ab.vertices() < nf {
+        return Err(FitError::Model("the model's vertex-major bases do not match its layout".into()));
+    }
     // Camera-space gradient `g` at vertex `v` → the row, through shape and pose.
     let position_path = |row: &mut [f64], v: usize, g: DVec3| {
         let gm = rt * g;
-        for (k, rk) in row[l.shape()].iter_mut().enumerate() {
-            let mode = if k < l.identity { model.identity_mode(k) } else { model.expression_mode(k - l.identity) };
-            let u = &mode[..nf][v];
-            *rk += gm.x * u[0] as f64 + gm.y * u[1] as f64 + gm.z * u[2] as f64;
+        if let Some(u) = sb.vertex(v) {
+            let rs = &mut row[l.shape()];
+            for (a, ua) in u.chunks_exact(ks).enumerate() {
+                let ga = gm[a];
+                rs.iter_mut().zip(ua).for_each(|(r, x)| *r += ga * *x as f64);
+            }
         }
         for (k, d) in dr.iter().enumerate() {
             row[l.rotation().start + k] += g.dot(*d * f.shape[v]);
@@ -183,8 +192,9 @@ fn curvature(objective: &Objective, f: &Forward, fp: &Footprint) -> Result<DMatr
                         add(&mut by_vertex, c0, g2);
                     }
                 }
-                for (m, rm) in row[l.albedo()].iter_mut().enumerate() {
-                    *rm += b[k] * shade * model.albedo_mode(m)[..nf][v][c] as f64;
+                if let Some(u) = ab.vertex(v) {
+                    let s = b[k] * shade;
+                    row[l.albedo()].iter_mut().zip(&u[c * ka..(c + 1) * ka]).for_each(|(r, x)| *r += s * *x as f64);
                 }
                 for m in 0..SH_COEFFS {
                     row[l.light().start + 3 * m + c] += b[k] * f.albedo[v][c] * phi[m];
@@ -199,9 +209,7 @@ fn curvature(objective: &Objective, f: &Forward, fp: &Footprint) -> Result<DMatr
                 position_path(&mut row, v, g);
             }
             let w = (pixel_weight / d[c].abs().max(IRLS_FLOOR)).sqrt();
-            for (i, v) in row.iter().enumerate() {
-                j[(r_i, i)] = w * v;
-            }
+            jt.column_mut(r_i).iter_mut().zip(&row).for_each(|(d, v)| *d = w * v);
             r_i += 1;
         }
     }
@@ -214,14 +222,12 @@ fn curvature(objective: &Objective, f: &Forward, fp: &Footprint) -> Result<DMatr
             position_path(&mut row, v as usize, DVec3::from(jac[axis]));
             let res = q[axis] - lm[axis] as f64;
             let w = (st.lambda_lms / 68.0 / res.abs().max(IRLS_FLOOR)).sqrt();
-            for (i, x) in row.iter().enumerate() {
-                j[(r_i, i)] = w * x;
-            }
+            jt.column_mut(r_i).iter_mut().zip(&row).for_each(|(d, v)| *d = w * v);
             r_i += 1;
         }
     }
     // (matrixmultiply's blocked product: several times faster than `tr_mul` here.)
-    let mut h = j.transpose() * &j;
+    let mut h = &jt * jt.transpose();
     for k in l.shape() {
         h[(k, k)] += 2.0 * if k < l.identity { st.lambda_id } else { st.lambda_exp };
     }
