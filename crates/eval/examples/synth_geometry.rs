@@ -8,12 +8,13 @@
 //! on the same faces: a fit means something only where it beats that.
 //!
 //!     cargo run --release -p facerecon-eval --example synth_geometry -- [--per-bucket N] [--seed S] \
-//!         [--buckets 0,1,2,3] [--sigma S] [--lambda-id L] [--lambda-exp L] [--coarse [--iterations N]] \
+//!         [--buckets 0,1,2,3] [--sigma S] [--lambda-id L] [--lambda-exp L] [--coarse [--iterations N] [--pyramid A,B]] \
 //!         [--full [--smooth λ] [--lr mm]] [--optimiser adam|lm] [--ph-lambda-id λ] [--ph-lambda-exp λ] \
 //!         [--encoder WEIGHTS] [--occlude] [--no-skin-mask] [--map-skin-mask] [--skin-sigmas K] \
 //!         [--max-image-side PX] [--truth-start]
 //!
-//! `--coarse` adds the photometric fit started from the exact landmarks' landmark fit;
+//! `--coarse` adds the photometric fit started from the exact landmarks' landmark fit
+//! (`--iterations` on the crop, `--pyramid A,B` on its 8× and 4× shrunk copies first);
 //! `--full` the displacement map on it too (the coarse figure then comes from the same run).
 //! `--occlude` draws an occluder over each face (`facerecon_synth::occluder`: up to a quarter
 //! of its landmark box); `--no-skin-mask` turns the coarse fit's skin mask off,
@@ -129,6 +130,10 @@ fn main() {
             "--lambda-id" => settings.identity_weight = v.parse().expect("number"),
             "--lambda-exp" => settings.expression_weight = v.parse().expect("number"),
             "--iterations" => iterations = Some(v.parse().expect("number")),
+            "--pyramid" => {
+                let n: Vec<usize> = v.split(',').map(|x| x.parse().expect("iterations")).collect();
+                photometric.pyramid = [n[0], *n.get(1).unwrap_or(&0)];
+            }
             "--optimiser" => {
                 photometric.optimiser = match v.as_str() {
                     "adam" => facerecon_fit::photometric::Optimiser::Adam,
@@ -136,8 +141,9 @@ fn main() {
                     _ => panic!("--optimiser adam|lm"),
                 };
                 if v == "adam" {
-                    // Adam's own cap (decision 0703).
+                    // Adam's own cap, on the crop alone (decision 0703).
                     photometric.iterations = 80;
+                    photometric.pyramid = [0, 0];
                 }
             }
             "--ph-lambda-id" => photometric.lambda_id = v.parse().expect("number"),

@@ -28,7 +28,7 @@ use nalgebra::{DMatrix, DVector};
 use crate::camera::CropCamera;
 use crate::decoder::{barycentric, normals, pose, project};
 use crate::error::FitError;
-use crate::photometric::{Footprint, Forward, Objective, PhotometricFit, PhotometricSettings};
+use crate::photometric::{Footprint, Forward, Objective, PhotometricFit, PhotometricSettings, Run};
 
 /// Pixels used for the curvature, at most.
 pub const CURVATURE_PIXELS: usize = 150;
@@ -36,8 +36,8 @@ pub const CURVATURE_PIXELS: usize = 150;
 /// Residuals smaller than this (colour 0–1, pixels) are weighted as if this large.
 const IRLS_FLOOR: f64 = 0.01;
 
-/// Fits like [`crate::photometric::fit`] (same loss, caps, time budget and stopping rule), by
-/// Levenberg–Marquardt.
+/// Fits like [`crate::photometric::fit`] on the crop alone (one pyramid level; same loss,
+/// caps, time budget and stopping rule), by Levenberg–Marquardt.
 pub fn fit(
     model: &MorphableModel,
     crop: &RgbImage,
@@ -47,9 +47,26 @@ pub fn fit(
     start: &Coefficients,
     settings: &PhotometricSettings,
 ) -> Result<PhotometricFit, FitError> {
-    let (objective, mut x) = Objective::start(model, crop, camera, landmarks, landmark_vertices, settings, start)?;
+    let deadline = Instant::now() + settings.time_budget;
+    let (objective, x) = Objective::start(model, crop, camera, landmarks, landmark_vertices, settings, start)?;
+    let run = minimise(&objective, x, settings.iterations, deadline)?;
+    Ok(PhotometricFit {
+        coefficients: objective.layout.unflatten(&run.x, start),
+        iterations: run.losses.len(),
+        losses: run.losses,
+        photometric_l1: run.l1,
+    })
+}
+
+/// Minimises `objective` from `x` by Levenberg–Marquardt: at most `iterations` attempts,
+/// none started after `deadline`, and the stopping rule of the settings' module docs.
+pub(crate) fn minimise(
+    objective: &Objective,
+    mut x: Vec<f64>,
+    iterations: usize,
+    deadline: Instant,
+) -> Result<Run, FitError> {
     let l = objective.layout;
-    let started = Instant::now();
     let mut losses = Vec::new();
     let mut fp = Vec::new();
     let mut mu = 0.1;
@@ -58,11 +75,11 @@ pub fn fit(
     losses.push(current.loss);
     let mut accepted = 0usize;
     let mut h: Option<DMatrix<f64>> = None;
-    while losses.len() < settings.iterations && started.elapsed() < settings.time_budget {
+    while losses.len() < iterations && Instant::now() < deadline {
         let g = current.gradient.clone().unwrap_or_default();
         // The curvature changes only when a step is taken.
         if h.is_none() {
-            h = Some(curvature(&objective, &current.forward, &fp)?);
+            h = Some(curvature(objective, &current.forward, &fp)?);
         }
         let Some(hm) = h.as_ref() else { continue };
         let n = l.len();
@@ -89,8 +106,9 @@ pub fn fit(
                 accepted += 1;
                 mu = (mu / 3.0).max(1e-6);
                 // Re-render every `raster_every` accepted steps.
-                let render = accepted.is_multiple_of(settings.raster_every.max(1));
-                current = objective.evaluate(&x, &mut fp, render, true)?;
+                let render = accepted.is_multiple_of(objective.settings.raster_every.max(1));
+                // The trial's forward state is this point's.
+                current = objective.evaluate_forward(&x, e.forward, &mut fp, render, true)?;
                 last_l1 = current.l1;
                 h = None;
             }
@@ -103,12 +121,7 @@ pub fn fit(
             break;
         }
     }
-    Ok(PhotometricFit {
-        coefficients: l.unflatten(&x, start),
-        iterations: losses.len(),
-        losses,
-        photometric_l1: last_l1,
-    })
+    Ok(Run { x, losses, l1: last_l1 })
 }
 
 /// The reweighted Gauss–Newton curvature `Σ w·JᵀJ + 2Λ` at `x` (module docs).
@@ -170,11 +183,13 @@ fn curvature(objective: &Objective, f: &Forward, fp: &Footprint) -> Result<DMatr
         };
         let value = f.colors[tri[0]] * b[0] + f.colors[tri[1]] * b[1] + f.colors[tri[2]] * b[2];
         let d = value - t.colors[*pix];
+        // The SH basis and its Jacobian at each corner's normal, for the three channels.
+        let sh = tri.map(|v| sh_basis_jacobian_f64(f.normals[v].to_array()));
         for c in 0..3 {
             row.iter_mut().for_each(|v| *v = 0.0);
             by_vertex.clear();
             for (k, &v) in tri.iter().enumerate() {
-                let (phi, dphi) = sh_basis_jacobian_f64(f.normals[v].to_array());
+                let (phi, dphi) = &sh[k];
                 let shade: f64 = (0..SH_COEFFS).map(|m| f.light[m][c] * phi[m]).sum();
                 // d colour / d n_v, then through the normalisation and the cross products of
                 // the triangles around v to their corners' positions.

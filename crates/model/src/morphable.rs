@@ -355,6 +355,44 @@ impl MorphableModel {
             std::sync::Arc::new([VertexMajorBasis::new(shape.into_iter(), nf), VertexMajorBasis::new(albedo, nf)])
         })
     }
+    /// The vector–Jacobian product of the face area's shape for modes
+    /// `first..first + out.len()` (identity modes, then expression modes):
+    /// `out[j] = Σ_v g_v·mode_{first+j}[v]` over the first `g.len()` face vertices, through
+    /// the 16-bit compute copy (within [`Self::shape_error_bound`]'s per-value error times
+    /// `Σ|g|`). Modes are independent: callers split them across threads.
+    pub fn face_shape_vjp_into(&self, g: &[[f32; 3]], first: usize, out: &mut [f64]) -> Result<(), ModelError> {
+        let (ni, ne) = (self.meta.identity.count, self.meta.expression.count);
+        if g.len() > self.meta.face_vertex_count || first + out.len() > ni + ne {
+            return Err(ModelError::CoefficientCount { block: "shape", expected: ni + ne, got: first + out.len() });
+        }
+        let g = g.as_flattened();
+        let split = ni.saturating_sub(first).min(out.len());
+        let (id, ex) = out.split_at_mut(split);
+        if !id.is_empty() {
+            self.face_bases.identity.transpose_into(g, first, id);
+        }
+        if !ex.is_empty() {
+            self.face_bases.expression.transpose_into(g, (first + split) - ni, ex);
+        }
+        Ok(())
+    }
+
+    /// [`Self::face_shape_vjp_into`] for the face area's albedo (`g` per vertex and channel).
+    pub fn face_albedo_vjp_into(&self, g: &[[f32; 3]], first: usize, out: &mut [f64]) -> Result<(), ModelError> {
+        let na = self.meta.albedo.count;
+        if g.len() > self.meta.face_vertex_count || first + out.len() > na {
+            return Err(ModelError::CoefficientCount { block: "albedo", expected: na, got: first + out.len() });
+        }
+        match &self.face_bases.albedo {
+            AlbedoBasis::Separable(b) => {
+                let planes = [0, 1, 2].map(|c| g.iter().map(|v| v[c]).collect::<Vec<f32>>());
+                b.transpose_into(&planes, first, out)
+            }
+            AlbedoBasis::Plain(b) => b.transpose_into(g.as_flattened(), first, out),
+        }
+        Ok(())
+    }
+
     /// Albedo mode `k` over the face area.
     pub fn albedo_mode(&self, k: usize) -> &[[f32; 3]] {
         let n3 = self.meta.face_vertex_count * 3;

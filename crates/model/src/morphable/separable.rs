@@ -86,6 +86,47 @@ impl SeparableBasis {
     }
 }
 
+impl SeparableBasis {
+    /// The transpose of [`Self::accumulate`]: `out[j] = Σ_v s_k[v]·(e_k·g_v)` for
+    /// `k = first + j`, over the first `g.len()` vertices; `planes` are `g`'s three
+    /// channels, each contiguous (three dot products per mode, each field read once).
+    pub(crate) fn transpose_into(&self, planes: &[Vec<f32>; 3], first: usize, out: &mut [f64]) {
+        assert!(first + out.len() <= self.colours.len());
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above).
+            unsafe { transpose_avx2(self, planes, first, out) };
+            return;
+        }
+        transpose_generic(self, planes, first, out);
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn transpose_avx2(b: &SeparableBasis, planes: &[Vec<f32>; 3], first: usize, out: &mut [f64]) {
+    transpose_generic(b, planes, first, out)
+}
+
+#[inline(always)]
+fn transpose_generic(b: &SeparableBasis, planes: &[Vec<f32>; 3], first: usize, out: &mut [f64]) {
+    for (j, o) in out.iter_mut().enumerate() {
+        let k = first + j;
+        let field = b.fields.mode(k);
+        let mut sum = 0.0f64;
+        for (c, plane) in planes.iter().enumerate() {
+            let n = plane.len().min(field.len());
+            let d: f64 = field[..n]
+                .chunks(1024)
+                .zip(plane[..n].chunks(1024))
+                .map(|(q, x)| super::quantized::dot8_i16(q, x) as f64)
+                .sum();
+            sum += d * b.colours[k][c] as f64;
+        }
+        *o = sum * b.fields.step(k) as f64;
+    }
+}
+
 /// The same loop with 256-bit vectors (identical results: no reordering, no FMA).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
@@ -192,6 +233,27 @@ mod tests {
                     assert!(err <= bound + 1e-6, "seed {seed} vertex {v}: {err} > {bound}");
                 }
             }
+        }
+    }
+
+    #[test]
+    fn transposed_sums_match_the_f32_basis() {
+        let (modes, n) = (7, 1100);
+        let basis = separable(modes, n);
+        let b = SeparableBasis::try_new(&basis, modes, n).expect("separable");
+        let g: Vec<[f32; 3]> = values(9, 3 * n).chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let planes = [0, 1, 2].map(|c| g.iter().map(|v| v[c]).collect::<Vec<f32>>());
+        let mut out = vec![f64::NAN; modes - 2];
+        b.transpose_into(&planes, 2, &mut out);
+        let mut unit = vec![0.0f32; modes];
+        for (j, got) in out.iter().enumerate() {
+            let k = 2 + j;
+            let want: f64 = (0..n * 3).map(|i| basis[k * n * 3 + i] as f64 * g[i / 3][i % 3] as f64).sum();
+            unit.iter_mut().enumerate().for_each(|(m, u)| *u = if m == k { 1.0 } else { 0.0 });
+            // Per value at most the bound of a unit weight; times Σ|g|, plus f32 rounding.
+            let g_abs: f64 = g.iter().flatten().map(|x| x.abs() as f64).sum();
+            let bound = b.error_bound(&unit) as f64 * g_abs + 1e-5 * want.abs().max(1.0);
+            assert!((got - want).abs() <= bound, "mode {k}: {got} vs {want} (bound {bound})");
         }
     }
 
