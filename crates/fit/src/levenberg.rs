@@ -126,13 +126,41 @@ pub(crate) fn minimise(
 
 /// The reweighted Gauss–Newton curvature `Σ w·JᵀJ + 2Λ` at `x` (module docs).
 fn curvature(objective: &Objective, f: &Forward, fp: &Footprint) -> Result<DMatrix<f64>, FitError> {
-    let (t, st, l, model) = (&objective.target, objective.settings, objective.layout, objective.model);
-    let n = l.len();
+    let (st, l) = (objective.settings, objective.layout);
     let stride = fp.len().div_ceil(CURVATURE_PIXELS).max(1);
     let rows_px: Vec<&(usize, [(u32, f64); 3])> = fp.iter().step_by(stride).collect();
     let pixel_weight = st.lambda_ph / st.sigma_ph / fp.len() as f64 * stride as f64;
-    // Jᵀ, one column per residual (a row of J is then contiguous).
+    let (mut jt, residuals) = jacobian(objective, f, &rows_px)?;
+    let n_px = 3 * rows_px.len();
+    for (i, r) in residuals.iter().enumerate() {
+        let a = if i < n_px { pixel_weight } else { st.lambda_lms / 68.0 };
+        jt.column_mut(i).scale_mut((a / r.abs().max(IRLS_FLOOR)).sqrt());
+    }
+    // (matrixmultiply's blocked product: several times faster than `tr_mul` here.)
+    let mut h = &jt * jt.transpose();
+    for k in l.shape() {
+        h[(k, k)] += 2.0 * if k < l.identity { st.lambda_id } else { st.lambda_exp };
+    }
+    for k in l.albedo() {
+        h[(k, k)] += 2.0 * st.lambda_tex;
+    }
+    Ok(h)
+}
+
+/// `Jᵀ` of the residuals at `f`, one column per residual (a row of `J` is then contiguous):
+/// the three colour channels of each of `pixels` (rendered colour − photo; zero columns where
+/// the pixel's ray misses its triangle), then x and y of each landmark (projection − target,
+/// crop pixels); and the residuals' values.
+fn jacobian(
+    objective: &Objective,
+    f: &Forward,
+    pixels: &[&(usize, [(u32, f64); 3])],
+) -> Result<(DMatrix<f64>, Vec<f64>), FitError> {
+    let (t, l, model) = (&objective.target, objective.layout, objective.model);
+    let n = l.len();
+    let rows_px = pixels;
     let mut jt = DMatrix::<f64>::zeros(n, 3 * rows_px.len() + 2 * t.landmark_vertices.len());
+    let mut residuals = vec![0.0; jt.ncols()];
     let r = pose::rotation(f.rotation);
     let rt = r.transpose();
     let dr = pose::rotation_derivatives(f.rotation);
@@ -172,17 +200,17 @@ fn curvature(objective: &Objective, f: &Forward, fp: &Footprint) -> Result<DMatr
     };
     let mut row = vec![0.0; n];
     let mut r_i = 0;
-    for (pix, corners) in rows_px {
+    for &&(pix, ref corners) in rows_px {
         let tri = [corners[0].0 as usize, corners[1].0 as usize, corners[2].0 as usize];
         let ray =
-            barycentric::pixel_ray((*pix as u32 % t.width) as f64, (*pix as u32 / t.width) as f64, t.width, t.height);
+            barycentric::pixel_ray((pix as u32 % t.width) as f64, (pix as u32 / t.width) as f64, t.width, t.height);
         let cp = [f.points[tri[0]], f.points[tri[1]], f.points[tri[2]]];
         let Some(b) = barycentric::forward(&t.clip, ray, cp) else {
             r_i += 3;
             continue;
         };
         let value = f.colors[tri[0]] * b[0] + f.colors[tri[1]] * b[1] + f.colors[tri[2]] * b[2];
-        let d = value - t.colors[*pix];
+        let d = value - t.colors[pix];
         // The SH basis and its Jacobian at each corner's normal, for the three channels.
         let sh = tri.map(|v| sh_basis_jacobian_f64(f.normals[v].to_array()));
         for c in 0..3 {
@@ -223,8 +251,8 @@ fn curvature(objective: &Objective, f: &Forward, fp: &Footprint) -> Result<DMatr
             for (v, g) in by_vertex.drain(..) {
                 position_path(&mut row, v, g);
             }
-            let w = (pixel_weight / d[c].abs().max(IRLS_FLOOR)).sqrt();
-            jt.column_mut(r_i).iter_mut().zip(&row).for_each(|(d, v)| *d = w * v);
+            jt.column_mut(r_i).iter_mut().zip(&row).for_each(|(d, v)| *d = *v);
+            residuals[r_i] = d[c];
             r_i += 1;
         }
     }
@@ -235,21 +263,12 @@ fn curvature(objective: &Objective, f: &Forward, fp: &Footprint) -> Result<DMatr
         for axis in 0..2 {
             row.iter_mut().for_each(|x| *x = 0.0);
             position_path(&mut row, v as usize, DVec3::from(jac[axis]));
-            let res = q[axis] - lm[axis] as f64;
-            let w = (st.lambda_lms / 68.0 / res.abs().max(IRLS_FLOOR)).sqrt();
-            jt.column_mut(r_i).iter_mut().zip(&row).for_each(|(d, v)| *d = w * v);
+            jt.column_mut(r_i).iter_mut().zip(&row).for_each(|(d, v)| *d = *v);
+            residuals[r_i] = q[axis] - lm[axis] as f64;
             r_i += 1;
         }
     }
-    // (matrixmultiply's blocked product: several times faster than `tr_mul` here.)
-    let mut h = &jt * jt.transpose();
-    for k in l.shape() {
-        h[(k, k)] += 2.0 * if k < l.identity { st.lambda_id } else { st.lambda_exp };
-    }
-    for k in l.albedo() {
-        h[(k, k)] += 2.0 * st.lambda_tex;
-    }
-    Ok(h)
+    Ok((jt, residuals))
 }
 
 #[cfg(test)]
@@ -293,5 +312,96 @@ mod tests {
         assert!(lm.iterations <= 25);
         assert!(last < 0.4 * lm.losses[0], "{:?}", lm.losses);
         assert_eq!(lm.coefficients.layout(), model.layout());
+    }
+}
+
+#[cfg(test)]
+mod jacobian_tests {
+    use super::*;
+    use facerecon_synth::{Generator, SynthConfig};
+    use facerecon_vision::crop;
+    use facerecon_vision::face::FaceBox;
+
+    /// The curvature's Jacobian rows (colour through albedo, light, normals and barycentrics;
+    /// landmarks through the projection) against central differences of the residuals
+    /// themselves, recomputed from the decoder's forward pass for the same pixels and
+    /// triangles.
+    #[test]
+    fn jacobian_rows_match_finite_differences() {
+        let model = facerecon_model::ict::load_default().unwrap();
+        let config = SynthConfig { buckets: vec![0], yaw_max_deg: 30.0, ..Default::default() };
+        let s = Generator::new(&model, config).unwrap().sample(5, 1).unwrap();
+        let pts: Vec<[f32; 2]> = s.truth.landmarks.iter().map(|l| l.xy).collect();
+        let cr = crop::crop_face(&s.image, &FaceBox::of_points(pts.iter().copied()).unwrap());
+        let in_crop: Vec<[f32; 2]> = pts.iter().map(|p| cr.transform.to_crop(*p)).collect();
+        let camera = CropCamera::of_photo(s.image.width(), s.image.height(), &cr.transform, crop::CROP_SIZE);
+        let lf = crate::LandmarkFitter::new(&model).unwrap().fit(&camera, &in_crop, None).unwrap();
+        let settings = PhotometricSettings { skin_mask: false, ..Default::default() };
+        // The truth's albedo and light, so that colours and shading are not flat.
+        let mut start = lf.coefficients.clone();
+        start.albedo = s.truth.coefficients.albedo.clone();
+        start.light = s.truth.coefficients.light;
+        let (objective, mut x) =
+            Objective::start(&model, &cr.image, &camera, &in_crop, &lf.vertices, &settings, &start).unwrap();
+        let l = objective.layout;
+        // An expression inside its range, so that both sides of the difference are valid.
+        let e = l.identity + 7;
+        x[e] = 0.3;
+        let f = objective.forward(&x).unwrap();
+        let fp = objective.target.footprint(&f.points).unwrap();
+        let pixels: Vec<&(usize, [(u32, f64); 3])> = fp.iter().step_by(fp.len() / 9).take(9).collect();
+        let (jt, res) = jacobian(&objective, &f, &pixels).unwrap();
+        let residuals = |x: &[f64]| -> Vec<f64> {
+            let t = &objective.target;
+            let f = objective.forward(x).unwrap();
+            let mut out = Vec::new();
+            for &&(pix, ref corners) in &pixels {
+                let tri = corners.map(|(v, _)| v as usize);
+                let ray =
+                    barycentric::pixel_ray((pix as u32 % t.width) as f64, (pix as u32 / t.width) as f64, 224, 224);
+                let b = barycentric::forward(&t.clip, ray, tri.map(|v| f.points[v])).unwrap();
+                let d = f.colors[tri[0]] * b[0] + f.colors[tri[1]] * b[1] + f.colors[tri[2]] * b[2] - t.colors[pix];
+                out.extend(d.to_array());
+            }
+            let p: Vec<DVec3> = t.landmark_vertices.iter().map(|&v| f.points[v as usize]).collect();
+            for (q, lm) in project::forward(&t.crop_camera, &p).iter().zip(t.landmarks) {
+                out.extend([q[0] - lm[0] as f64, q[1] - lm[1] as f64]);
+            }
+            out
+        };
+        let r0 = residuals(&x);
+        assert_eq!(r0.len(), res.len());
+        for (a, b) in r0.iter().zip(&res) {
+            assert!((a - b).abs() < 1e-9, "residual {a} vs {b}");
+        }
+        let checks = [
+            (0, 1e-2),
+            (57, 1e-2),
+            (e, 1e-2),
+            (l.albedo().start, 1e-2),
+            (l.albedo().start + 31, 1e-2),
+            (l.light().start, 1e-3),
+            (l.light().start + 3 * 5 + 1, 1e-3),
+            (l.rotation().start, 1e-4),
+            (l.rotation().start + 1, 1e-4),
+            (l.translation().start, 1e-2),
+            (l.translation().start + 2, 1e-2),
+        ];
+        for (k, h) in checks {
+            let (mut xp, mut xm) = (x.clone(), x.clone());
+            xp[k] += h;
+            xm[k] -= h;
+            let (rp, rm) = (residuals(&xp), residuals(&xm));
+            let fd: Vec<f64> = rp.iter().zip(&rm).map(|(p, m)| (p - m) / (2.0 * h)).collect();
+            let scale = fd.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            assert!(scale > 0.0, "parameter {k} moves no residual");
+            for (i, want) in fd.iter().enumerate() {
+                let got = jt[(k, i)];
+                assert!(
+                    (got - want).abs() <= 0.02 * want.abs() + 2e-3 * scale,
+                    "parameter {k}, residual {i}: Jacobian {got} vs finite difference {want} (scale {scale})"
+                );
+            }
+        }
     }
 }
