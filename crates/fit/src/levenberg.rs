@@ -158,8 +158,7 @@ fn jacobian(
 ) -> Result<(DMatrix<f64>, Vec<f64>), FitError> {
     let (t, l, model) = (&objective.target, objective.layout, objective.model);
     let n = l.len();
-    let rows_px = pixels;
-    let mut jt = DMatrix::<f64>::zeros(n, 3 * rows_px.len() + 2 * t.landmark_vertices.len());
+    let mut jt = DMatrix::<f64>::zeros(n, 3 * pixels.len() + 2 * t.landmark_vertices.len());
     let mut residuals = vec![0.0; jt.ncols()];
     let r = pose::rotation(f.rotation);
     let rt = r.transpose();
@@ -200,7 +199,7 @@ fn jacobian(
     };
     let mut row = vec![0.0; n];
     let mut r_i = 0;
-    for &&(pix, ref corners) in rows_px {
+    for &&(pix, ref corners) in pixels {
         let tri = [corners[0].0 as usize, corners[1].0 as usize, corners[2].0 as usize];
         let ray =
             barycentric::pixel_ray((pix as u32 % t.width) as f64, (pix as u32 / t.width) as f64, t.width, t.height);

@@ -14,7 +14,9 @@
 //!   16-bit copy of the bases built when the model is assembled (submodules `quantized` and
 //!   `separable`), within a stated bound of the f32 formula
 //!   ([`MorphableModel::shape_error_bound`], [`MorphableModel::albedo_error_bound`]);
-//!   [`Extent::Full`] evaluates the f32 bases as stored (the reference).
+//!   [`Extent::Full`] evaluates the f32 bases as stored (the reference); the fits'
+//!   vector–Jacobian products read the same 16-bit copy ([`MorphableModel::face_shape_vjp_into`]),
+//!   their Jacobian rows a vertex-major f32 copy built on first use (submodule `by_vertex`).
 
 mod by_vertex;
 mod quantized;
@@ -362,7 +364,7 @@ impl MorphableModel {
     /// `Σ|g|`). Modes are independent: callers split them across threads.
     pub fn face_shape_vjp_into(&self, g: &[[f32; 3]], first: usize, out: &mut [f64]) -> Result<(), ModelError> {
         let (ni, ne) = (self.meta.identity.count, self.meta.expression.count);
-        if g.len() > self.meta.face_vertex_count || first + out.len() > ni + ne {
+        if g.len() > self.meta.face_vertex_count || first.saturating_add(out.len()) > ni + ne {
             return Err(ModelError::CoefficientCount { block: "shape", expected: ni + ne, got: first + out.len() });
         }
         let g = g.as_flattened();
@@ -380,7 +382,7 @@ impl MorphableModel {
     /// [`Self::face_shape_vjp_into`] for the face area's albedo (`g` per vertex and channel).
     pub fn face_albedo_vjp_into(&self, g: &[[f32; 3]], first: usize, out: &mut [f64]) -> Result<(), ModelError> {
         let na = self.meta.albedo.count;
-        if g.len() > self.meta.face_vertex_count || first + out.len() > na {
+        if g.len() > self.meta.face_vertex_count || first.saturating_add(out.len()) > na {
             return Err(ModelError::CoefficientCount { block: "albedo", expected: na, got: first + out.len() });
         }
         match &self.face_bases.albedo {
