@@ -28,6 +28,11 @@ pub struct Config {
     /// Where the encoder runs: `cpu` (ONNX Runtime, the default) or `gpu` (burn's Vulkan
     /// backend; servers built with `--features gpu`, decision 0901).
     pub encoder_device: Compute,
+    /// What draws the pictures (overlay, side-by-side): `auto` (the default: the wgpu
+    /// renderer on a thread of its own when a Vulkan device that is not a CPU
+    /// implementation is there, else the CPU rasteriser, the faster on lavapipe), `cpu`, or
+    /// `gpu` (the wgpu thread on whatever adapter there is, lavapipe included).
+    pub renderer: RendererChoice,
     /// Faces per batch handed to the backend at most.
     pub max_batch_size: usize,
     /// How long the batcher waits for a batch to fill, ms. 0 (default): greedy, a batch is
@@ -55,6 +60,9 @@ pub struct Config {
     pub shutdown_grace_s: u64,
     /// `text` or `json` log lines on stderr (level from `RUST_LOG`, default `info`).
     pub log_format: LogFormat,
+    /// OTLP/gRPC collector to export trace spans to, e.g. `http://otel-collector:4317`;
+    /// `None` (the default): no export.
+    pub otlp_endpoint: Option<String>,
 }
 
 /// Which encoder the server loads. Written `released`, `none`, or a path.
@@ -98,6 +106,26 @@ impl std::str::FromStr for EncoderChoice {
     }
 }
 
+/// Which producer draws the pictures (see [`Config::renderer`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum RendererChoice {
+    #[default]
+    Auto,
+    Cpu,
+    Gpu,
+}
+
+impl From<RendererChoice> for facerecon_raster::draw::Choice {
+    fn from(c: RendererChoice) -> Self {
+        match c {
+            RendererChoice::Auto => facerecon_raster::draw::Choice::Auto,
+            RendererChoice::Cpu => facerecon_raster::draw::Choice::Cpu,
+            RendererChoice::Gpu => facerecon_raster::draw::Choice::Gpu,
+        }
+    }
+}
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum LogFormat {
@@ -114,6 +142,7 @@ impl Default for Config {
             landmark_model: PathBuf::from(facerecon_vision::landmarks::DEFAULT_MODEL_PATH),
             encoder: EncoderChoice::Released,
             encoder_device: Compute::Cpu,
+            renderer: RendererChoice::Auto,
             max_batch_size: 16,
             max_queue_delay_ms: 0,
             queue_capacity: 64,
@@ -126,6 +155,7 @@ impl Default for Config {
             auth_token: None,
             shutdown_grace_s: 30,
             log_format: LogFormat::Text,
+            otlp_endpoint: None,
         }
     }
 }
@@ -151,6 +181,9 @@ impl Config {
             self.encoder_device != Compute::Gpu || Compute::GPU_BUILT,
             "encoder_device = gpu, but this server was built without the GPU backend (build with `--features gpu`)"
         );
+        if let Some(e) = &self.otlp_endpoint {
+            crate::telemetry::validate_endpoint(e)?;
+        }
         if let Some(t) = &self.auth_token {
             anyhow::ensure!(!t.trim().is_empty(), "auth_token is empty");
         }
@@ -185,6 +218,10 @@ pub struct Args {
     /// [default: cpu].
     #[arg(long, env = "FACERECON_ENCODER_DEVICE")]
     pub encoder_device: Option<Compute>,
+    /// What draws the pictures: auto (wgpu on a real GPU, else the CPU rasteriser), cpu or
+    /// gpu [default: auto].
+    #[arg(long, env = "FACERECON_RENDERER", value_enum)]
+    pub renderer: Option<RendererChoice>,
     /// Faces per batch at most [default: 16].
     #[arg(long, env = "FACERECON_MAX_BATCH_SIZE")]
     pub max_batch_size: Option<usize>,
@@ -221,6 +258,10 @@ pub struct Args {
     /// Log line format [default: text].
     #[arg(long, env = "FACERECON_LOG_FORMAT", value_enum)]
     pub log_format: Option<LogFormat>,
+    /// Export trace spans over OTLP/gRPC to this collector (e.g. http://otel-collector:4317)
+    /// [default: none].
+    #[arg(long, env = "FACERECON_OTLP_ENDPOINT")]
+    pub otlp_endpoint: Option<String>,
 }
 
 impl Args {
@@ -237,9 +278,9 @@ impl Args {
             ($($f:ident),*) => { $( if let Some(v) = self.$f { c.$f = Some(v); } )* };
         }
         set!(listen, landmark_model, encoder, encoder_device, max_batch_size, max_queue_delay_ms, queue_capacity);
-        set!(cpu_threads);
+        set!(cpu_threads, renderer);
         set!(max_message_bytes, max_image_pixels, max_faces, shutdown_grace_s, log_format);
-        set_some!(model, tls_cert, tls_key, auth_token);
+        set_some!(model, tls_cert, tls_key, auth_token, otlp_endpoint);
         if let Some(m) = self.metrics_listen {
             c.metrics_listen = match m.as_str() {
                 "off" | "" => None,
@@ -321,5 +362,18 @@ mod tests {
         let args = Args::try_parse_from(["facerecon-server", "--encoder-device", "gpu"]).unwrap();
         assert_eq!(args.encoder_device, Some(Compute::Gpu));
         assert!(Args::try_parse_from(["facerecon-server", "--encoder-device", "tpu"]).is_err());
+        // OTLP: a URL with a scheme and a host.
+        for bad in ["collector:4317", "grpc://collector:4317", "http://", "not a url"] {
+            let c = Config { otlp_endpoint: Some(bad.into()), ..Config::default() };
+            assert!(c.validate().is_err(), "{bad}");
+        }
+        let c = Config { otlp_endpoint: Some("http://otel-collector:4317".into()), ..Config::default() };
+        c.validate().unwrap();
+        // The renderer, by file and by flag.
+        let c: Config = toml::from_str("renderer = \"gpu\"").unwrap();
+        assert_eq!(c.renderer, RendererChoice::Gpu);
+        let args = Args::try_parse_from(["facerecon-server", "--renderer", "cpu"]).unwrap();
+        assert_eq!(args.resolve().unwrap().renderer, RendererChoice::Cpu);
+        assert!(Args::try_parse_from(["facerecon-server", "--renderer", "opengl"]).is_err());
     }
 }

@@ -154,6 +154,7 @@ pub fn response(
     model: &facerecon_model::MorphableModel,
     recon: &Reconstruction,
     wanted: &Wanted,
+    draw: &dyn facerecon_raster::Draw,
 ) -> Result<pb::ReconstructResponse, Status> {
     let mut faces = Vec::with_capacity(recon.faces.len());
     for f in &recon.faces {
@@ -266,15 +267,17 @@ pub fn response(
         });
     }
     let overlay_png = if wanted.overlay {
-        png(&outputs::overlay(model, recon, 0.85).map_err(|e| internal("rendering the overlay", e))?)?
+        png(&outputs::overlay(model, recon, 0.85, draw).map_err(|e| internal("rendering the overlay", e))?)?
     } else {
         Vec::new()
     };
     let side_by_side_png = match wanted.side_by_side {
-        true => match outputs::side_by_side(model, recon).map_err(|e| internal("rendering the side-by-side", e))? {
-            Some(img) => png(&img)?,
-            None => Vec::new(),
-        },
+        true => {
+            match outputs::side_by_side(model, recon, draw).map_err(|e| internal("rendering the side-by-side", e))? {
+                Some(img) => png(&img)?,
+                None => Vec::new(),
+            }
+        }
         false => Vec::new(),
     };
     Ok(pb::ReconstructResponse {

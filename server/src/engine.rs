@@ -13,7 +13,9 @@
 //!   parallel over the batch on the backend's own threads, so that it never waits behind
 //!   queued decode jobs. Only one batch is in the backend at a time, so batches form while
 //!   it works.
-//! * **per photo, on the CPU pool**: the outputs (meshes, pictures).
+//! * **per photo, on the CPU pool**: the outputs (meshes, pictures). Pictures are drawn by
+//!   the configured [`Draw`]: the CPU rasteriser on the pool thread, or the wgpu renderer
+//!   on its own thread, which merges the pictures of concurrent photos into one submission.
 //!
 //! Work whose caller went away is dropped before it starts: every stage's result goes to a
 //! oneshot channel, and a stage whose receiver is gone does not run. Panics in a stage
@@ -23,6 +25,7 @@ use std::panic::AssertUnwindSafe;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use facerecon_raster::Draw;
 use facerecon_recon::{FaceError, FaceRecon, Options, Pipeline, Reconstruction, Refine, Start};
 use facerecon_vision::pipeline::Face;
 use image::RgbImage;
@@ -84,6 +87,7 @@ pub struct Engine {
     cpu_slots: Semaphore,
     faces: mpsc::UnboundedSender<FaceJob>,
     settings: EngineSettings,
+    draw: Arc<dyn Draw>,
 }
 
 /// A photo's place in the queue; dropping it frees the place.
@@ -98,11 +102,13 @@ impl Drop for Admitted {
 }
 
 impl Engine {
-    /// Starts the batcher task (on the current tokio runtime) and the backend's threads.
+    /// Starts the batcher task (on the current tokio runtime) and the backend's threads;
+    /// pictures are drawn by `draw`.
     pub fn start(
         pipeline: Arc<Pipeline>,
         pool: Arc<rayon::ThreadPool>,
         settings: EngineSettings,
+        draw: Arc<dyn Draw>,
     ) -> Result<Arc<Engine>, rayon::ThreadPoolBuildError> {
         let (tx, rx) = mpsc::unbounded_channel();
         // The face queue is bounded by admission: at most queue_capacity photos of at most
@@ -124,6 +130,7 @@ impl Engine {
             cpu_slots: Semaphore::new(threads),
             faces: tx,
             settings,
+            draw,
         }))
     }
 
@@ -209,9 +216,9 @@ impl Engine {
         let fit_s = t.elapsed().as_secs_f64();
 
         let recon = Reconstruction { image: Arc::unwrap_or_clone(image), faces: recons };
-        let pipeline = self.pipeline.clone();
+        let (pipeline, draw) = (self.pipeline.clone(), self.draw.clone());
         let (response, waited, outputs_s) =
-            self.cpu(move || convert::response(pipeline.model(), &recon, &wanted)).await?;
+            self.cpu(move || convert::response(pipeline.model(), &recon, &wanted, &*draw)).await?;
         let mut response = response?;
         queue_s += waited;
         metrics::histogram!(m::STAGE_SECONDS, "stage" => "outputs").record(outputs_s);

@@ -1,5 +1,5 @@
 //! `facerecon-server`: the gRPC service over the [`facerecon_recon`] pipeline (DESIGN §10).
-//! This crate holds only protocol, configuration, queue, batcher and metrics; the
+//! This crate holds only protocol, configuration, queue, batcher and telemetry; the
 //! reconstruction is the pipeline's, the same one `facerecon fit` runs in-process.
 //!
 //! * [`config`]: defaults, file, environment, flags;
@@ -7,6 +7,7 @@
 //! * [`engine`]: admission, CPU pool, batcher;
 //! * [`service`]: the RPC handlers (deadlines, streams, per-call metrics);
 //! * [`metrics`]: metric names and the Prometheus exporter;
+//! * [`telemetry`]: log lines and the optional OTLP trace export;
 //! * [`serve`]: health, reflection, auth, TLS, message limits, graceful shutdown.
 
 pub mod config;
@@ -14,6 +15,7 @@ pub mod convert;
 pub mod engine;
 pub mod metrics;
 pub mod service;
+pub mod telemetry;
 
 use std::future::Future;
 use std::sync::{Arc, OnceLock};
@@ -32,6 +34,9 @@ use service::{Arrival, Service, State};
 
 /// The gRPC name of the reconstruction service (for health checks).
 pub const SERVICE_NAME: &str = "facerecon.v1.Reconstructor";
+/// Most render jobs the wgpu thread merges into one submission (a side-by-side is four per
+/// face, an overlay one).
+const RENDER_BATCH_JOBS: usize = 32;
 
 /// Loads the pipeline the server runs (called once, off the async runtime).
 pub type Loader = Box<dyn FnOnce() -> anyhow::Result<Arc<Pipeline>> + Send>;
@@ -135,6 +140,7 @@ pub async fn serve(
         queue_capacity: config.queue_capacity,
     };
     let (failed_tx, failed_rx) = tokio::sync::oneshot::channel::<anyhow::Error>();
+    let renderer = config.renderer;
     {
         let state = state.clone();
         let reporter = reporter.clone();
@@ -142,7 +148,26 @@ pub async fn serve(
             let t = Instant::now();
             match tokio::task::spawn_blocking(load).await {
                 Ok(Ok(pipeline)) => {
-                    let engine = match Engine::start(pipeline.clone(), pool, settings) {
+                    let choice = renderer.into();
+                    let draw = match tokio::task::spawn_blocking(move || {
+                        facerecon_raster::draw::open(choice, RENDER_BATCH_JOBS)
+                    })
+                    .await
+                    {
+                        Ok(Ok((draw, why))) => {
+                            tracing::info!(renderer = %why, "pictures drawn by");
+                            Arc::<dyn facerecon_raster::Draw>::from(draw)
+                        }
+                        Ok(Err(e)) => {
+                            let _ = failed_tx.send(anyhow::anyhow!("opening the renderer: {e}"));
+                            return;
+                        }
+                        Err(e) => {
+                            let _ = failed_tx.send(anyhow::anyhow!("opening the renderer panicked: {e}"));
+                            return;
+                        }
+                    };
+                    let engine = match Engine::start(pipeline.clone(), pool, settings, draw) {
                         Ok(e) => e,
                         Err(e) => {
                             let _ = failed_tx.send(anyhow::anyhow!("starting the backend threads: {e}"));
@@ -238,15 +263,4 @@ pub async fn serve(
 /// Compares secrets without an early exit on the first differing byte.
 fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
     a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
-}
-
-/// Logging on stderr, level from `RUST_LOG` (default `info`).
-pub fn init_tracing(format: config::LogFormat) {
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    let b = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr);
-    let _ = match format {
-        config::LogFormat::Text => b.try_init(),
-        config::LogFormat::Json => b.json().try_init(),
-    };
 }

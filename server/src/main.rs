@@ -10,7 +10,6 @@ fn main() -> std::process::ExitCode {
             return std::process::ExitCode::from(2);
         }
     };
-    facerecon_server::init_tracing(config.log_format);
     let runtime = match tokio::runtime::Builder::new_multi_thread().enable_all().build() {
         Ok(r) => r,
         Err(e) => {
@@ -18,14 +17,27 @@ fn main() -> std::process::ExitCode {
             return std::process::ExitCode::FAILURE;
         }
     };
-    match runtime.block_on(run(config)) {
+    // Inside the runtime: the OTLP exporter's client needs it.
+    let telemetry = match runtime
+        .block_on(async { facerecon_server::telemetry::init(config.log_format, config.otlp_endpoint.as_deref()) })
+    {
+        Ok(t) => t,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            return std::process::ExitCode::from(2);
+        }
+    };
+    let code = match runtime.block_on(run(config)) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             tracing::error!("{e:#}");
             eprintln!("error: {e:#}");
             std::process::ExitCode::FAILURE
         }
-    }
+    };
+    // The runtime is still alive (its workers drive the exporter's connection).
+    telemetry.shutdown();
+    code
 }
 
 async fn run(config: facerecon_server::Config) -> anyhow::Result<()> {

@@ -88,3 +88,113 @@ fn sigterm_drains_in_flight_work_and_metrics_are_exported() {
     assert!(lines.iter().any(|l| l.contains("draining")), "{lines:?}");
     assert!(lines.iter().any(|l| l.contains("stopped")), "{lines:?}");
 }
+
+/// A span as the collector received it: name, attributes, the resource's `service.name`.
+#[derive(Clone, Debug)]
+struct Received {
+    name: String,
+    attributes: Vec<(String, String)>,
+    service: String,
+}
+
+/// A stand-in OTLP collector: records the name and attributes of every span it is sent.
+#[derive(Default, Clone)]
+struct Collector {
+    spans: std::sync::Arc<std::sync::Mutex<Vec<Received>>>,
+}
+
+#[tonic::async_trait]
+impl opentelemetry_proto::tonic::collector::trace::v1::trace_service_server::TraceService for Collector {
+    async fn export(
+        &self,
+        request: tonic::Request<opentelemetry_proto::tonic::collector::trace::v1::ExportTraceServiceRequest>,
+    ) -> Result<
+        tonic::Response<opentelemetry_proto::tonic::collector::trace::v1::ExportTraceServiceResponse>,
+        tonic::Status,
+    > {
+        use opentelemetry_proto::tonic::common::v1::any_value::Value;
+        let text = |v: &Option<opentelemetry_proto::tonic::common::v1::AnyValue>| match v
+            .as_ref()
+            .and_then(|v| v.value.as_ref())
+        {
+            Some(Value::StringValue(s)) => s.clone(),
+            Some(Value::IntValue(i)) => i.to_string(),
+            other => format!("{other:?}"),
+        };
+        let mut spans = self.spans.lock().unwrap();
+        for rs in request.into_inner().resource_spans {
+            let service = rs
+                .resource
+                .iter()
+                .flat_map(|r| &r.attributes)
+                .find(|a| a.key == "service.name")
+                .map(|a| text(&a.value))
+                .unwrap_or_default();
+            for ss in rs.scope_spans {
+                for s in ss.spans {
+                    let attributes = s.attributes.iter().map(|a| (a.key.clone(), text(&a.value))).collect();
+                    spans.push(Received { name: s.name, attributes, service: service.clone() });
+                }
+            }
+        }
+        Ok(tonic::Response::new(Default::default()))
+    }
+}
+
+/// `--otlp-endpoint`: the request's span, with its id, reaches an OTLP/gRPC collector (by
+/// SIGTERM at the latest: the batch is flushed on the way out), under the service's name.
+#[test]
+fn spans_are_exported_over_otlp() {
+    use opentelemetry_proto::tonic::collector::trace::v1::trace_service_server::TraceServiceServer;
+    let rt = tokio::runtime::Builder::new_multi_thread().enable_all().build().unwrap();
+    let collector = Collector::default();
+    let otlp = rt.block_on(async {
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let svc = TraceServiceServer::new(collector.clone());
+        tokio::spawn(
+            tonic::transport::Server::builder()
+                .add_service(svc)
+                .serve_with_incoming(tokio_stream::wrappers::TcpListenerStream::new(listener)),
+        );
+        addr
+    });
+    // A bad endpoint is a configuration error, said before anything starts.
+    let out = Command::new(env!("CARGO_BIN_EXE_facerecon-server"))
+        .args(["--otlp-endpoint", "collector:4317"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("otlp_endpoint"), "{}", String::from_utf8_lossy(&out.stderr));
+
+    let port = free_port();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_facerecon-server"))
+        .args(["--listen", &format!("127.0.0.1:{port}"), "--metrics-listen", "off"])
+        .args(["--otlp-endpoint", &format!("http://{otlp}")])
+        .env_remove("OTEL_SERVICE_NAME")
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let photo = std::fs::read(&facerecon_tests::photos(1)[0]).unwrap();
+    rt.block_on(async {
+        let c = Client::connect(
+            &[format!("http://127.0.0.1:{port}")],
+            ConnectOptions { retries: 12, backoff: Duration::from_millis(250), ..Default::default() },
+        )
+        .await
+        .unwrap();
+        let r = c.reconstruct(Request::new("otlp-42", photo)).await.unwrap();
+        assert_eq!(r.faces.len(), 1);
+    });
+    let kill = Command::new("kill").args(["-TERM", &child.id().to_string()]).status().unwrap();
+    assert!(kill.success());
+    assert!(child.wait().unwrap().success());
+    let spans = collector.spans.lock().unwrap().clone();
+    let mine: Vec<_> = spans
+        .iter()
+        .filter(|s| s.name == "reconstruct" && s.attributes.iter().any(|(k, v)| k == "id" && v == "otlp-42"))
+        .collect();
+    assert_eq!(mine.len(), 1, "spans received: {spans:?}");
+    assert_eq!(mine[0].service, "facerecon-server");
+    rt.shutdown_timeout(Duration::from_secs(1));
+}

@@ -97,6 +97,54 @@ async fn a_photo_gets_coefficients_meshes_and_pictures() {
     s.stop().await.unwrap();
 }
 
+/// The pictures drawn by the wgpu renderer on its own thread (`renderer = gpu`, lavapipe
+/// here) against the CPU rasteriser's (`renderer = cpu`): two independent producers, the
+/// same pictures up to edge pixels, for one face and for several requests at once.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn pictures_from_the_render_thread_match_the_cpu_rasteriser() {
+    use facerecon_server::config::RendererChoice;
+    let cpu = TestServer::start(Config { renderer: RendererChoice::Cpu, ..Config::default() }).await;
+    let gpu = TestServer::start(Config { renderer: RendererChoice::Gpu, ..Config::default() }).await;
+    let opts = pb::Options {
+        outputs: Some(pb::Outputs { overlay: true, side_by_side: true, ..Default::default() }),
+        ..Default::default()
+    };
+    let pictures = |r: &facerecon_client::Reconstruction| {
+        [r.overlay_png.as_ref().unwrap(), r.side_by_side_png.as_ref().unwrap()]
+            .map(|p| image::load_from_memory(p).unwrap().to_rgb8())
+    };
+    let (c, g) = (client(&cpu).await, client(&gpu).await);
+    let photos: Vec<Vec<u8>> = (0..3).map(photo).collect();
+    let want: Vec<_> = {
+        let mut v = Vec::new();
+        for p in &photos {
+            v.push(pictures(&c.reconstruct(with(opts.clone(), p.clone())).await.unwrap()));
+        }
+        v
+    };
+    // All at once, so that the render thread merges requests.
+    let calls: Vec<_> = photos
+        .iter()
+        .map(|p| {
+            let (g, request) = (g.clone(), with(opts.clone(), p.clone()));
+            tokio::spawn(async move { g.reconstruct(request).await })
+        })
+        .collect();
+    for (k, (w, call)) in want.iter().zip(calls).enumerate() {
+        let r = call.await.unwrap();
+        for (name, (a, b)) in ["overlay", "side-by-side"].iter().zip(w.iter().zip(pictures(&r.unwrap()))) {
+            assert_eq!(a.dimensions(), b.dimensions(), "photo {k} {name}");
+            let n = a.as_raw().len() / 3;
+            let px = |i: usize| a.as_raw()[3 * i..3 * i + 3].iter().zip(&b.as_raw()[3 * i..3 * i + 3]);
+            let differ = (0..n).filter(|&i| px(i).any(|(x, y)| x.abs_diff(*y) > 2)).count();
+            eprintln!("photo {k} {name}: {differ} of {n} pixels differ by more than 2/255");
+            assert!((differ as f64) < 0.001 * n as f64, "photo {k} {name}: {differ} of {n} pixels differ");
+        }
+    }
+    cpu.stop().await.unwrap();
+    gpu.stop().await.unwrap();
+}
+
 /// REFINE_FULL: the displacement stage's summary, its map as a 16-bit PNG, and meshes that
 /// carry the map, all as the in-process pipeline makes them.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -348,6 +396,7 @@ async fn the_server_answers_deadline_exceeded_itself() {
         p,
         pool,
         facerecon_server::engine::EngineSettings { max_batch_size: 4, max_queue_delay: None, queue_capacity: 4 },
+        std::sync::Arc::new(facerecon_raster::draw::Cpu),
     )
     .unwrap();
     let state = facerecon_server::service::State {

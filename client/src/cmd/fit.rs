@@ -183,9 +183,9 @@ fn one(pipeline: &Pipeline, args: &FitArgs, path: &Path) -> anyhow::Result<()> {
             error: face.fit.as_ref().err().map(|e| e.to_string()),
         });
     }
-    let overlay = outputs::overlay(model, &recon, 0.85)?;
+    let overlay = outputs::overlay(model, &recon, 0.85, &facerecon_raster::draw::Cpu)?;
     files::write_picture(&args.out, &stem, files::OVERLAY, &files::png(&overlay)?)?;
-    if let Some(sbs) = outputs::side_by_side(model, &recon)? {
+    if let Some(sbs) = outputs::side_by_side(model, &recon, &facerecon_raster::draw::Cpu)? {
         files::write_picture(&args.out, &stem, files::SIDE_BY_SIDE, &files::png(&sbs)?)?;
     }
     let name = path.display().to_string();

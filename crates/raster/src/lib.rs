@@ -18,8 +18,12 @@
 //!   [`cpu::render`] resolves on the CPU; the GPU resolves in a compute shader
 //!   (`shaders/resolve.wgsl`) with the same formulas.
 //! * [`overlay`] — a rendering alpha-blended onto a photo where its mask is set.
+//! * [`Draw`] ([`draw`]) — one interface over both producers for callers that only want
+//!   frames: [`draw::Cpu`], or [`draw::RenderThread`] (the wgpu renderer on a thread of its
+//!   own, batching concurrent callers); [`draw::open`] picks one.
 
 pub mod cpu;
+pub mod draw;
 pub mod error;
 pub mod frame;
 pub mod gpu;
@@ -27,6 +31,7 @@ pub mod job;
 pub mod overlay;
 pub mod visibility;
 
+pub use draw::Draw;
 pub use error::RenderError;
 pub use facerecon_model::scene::Camera;
 pub use frame::Frame;

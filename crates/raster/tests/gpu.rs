@@ -179,3 +179,62 @@ fn gpu_shaded_sphere_matches_cpu_and_bad_input_is_an_error() {
     let again = r.render(&[job]).unwrap().remove(0);
     assert!(again == g);
 }
+
+/// The render thread, called from many threads at once: every caller gets its own frames,
+/// bit-identical to the same jobs rendered alone by a `Renderer` (Layers batching), and the
+/// CPU rasteriser behind the same `Draw` interface agrees with the oracle. A bad job is its
+/// caller's error and the thread goes on serving.
+#[test]
+fn the_render_thread_batches_callers_and_answers_each() {
+    use facerecon_raster::Draw;
+    use facerecon_raster::draw::{Cpu, RenderThread};
+    let thread = match RenderThread::spawn(Batching::Layers, 8) {
+        Ok(t) => t,
+        Err(e) => panic!("GPU tests need a Vulkan adapter (Mesa lavapipe works): {e}"),
+    };
+    eprintln!("{}", thread.describe());
+    let scenes: Vec<_> = (0..12u64).map(|s| random_triangles(500 + s, 30, s % 3 == 0)).collect();
+    let mut reference = renderer(Batching::Layers);
+    // Six callers drawing 1, 2 or 3 jobs each, every job of its own size.
+    let mut requests: Vec<Vec<RenderJob>> = Vec::new();
+    let mut next = scenes.iter().enumerate();
+    for n in [1, 2, 3, 1, 2, 3] {
+        requests.push(next.by_ref().take(n).map(|(i, s)| s.job(24 + 4 * i as u32, 40 - 2 * i as u32)).collect());
+    }
+    assert!(requests.len() >= 6);
+    let alone: Vec<Vec<_>> = requests.iter().map(|r| reference.render(r).unwrap()).collect();
+    for round in 0..3 {
+        let got: Vec<Vec<_>> = std::thread::scope(|s| {
+            let handles: Vec<_> = requests.iter().map(|r| s.spawn(|| thread.draw(r).unwrap())).collect();
+            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        });
+        for (k, (g, a)) in got.iter().zip(&alone).enumerate() {
+            assert_eq!(g.len(), a.len(), "round {round}, caller {k}");
+            for (f, (gf, af)) in g.iter().zip(a).enumerate() {
+                assert!(gf == af, "round {round}, caller {k}, frame {f} differs from its render alone");
+            }
+        }
+    }
+    let st = thread.stats();
+    eprintln!("{st:?}");
+    assert_eq!((st.requests, st.jobs), (18, 36));
+    // The CPU behind the same interface: against the oracle.
+    let frames = Cpu.draw(&requests[0]).unwrap();
+    for (job, f) in requests[0].iter().zip(&frames) {
+        let (bad, _, _) = compare(job, &oracle(job), &f.visibility, 1e-2, 1e-6);
+        assert!(bad.is_empty());
+    }
+    // A bad job (a triangle index past the vertices) names itself, from either producer.
+    let s = &scenes[0];
+    let mut tris = s.triangles.clone();
+    tris[3] = [0, 1, s.positions.len() as u32];
+    let bad = RenderJob { triangles: &tris, ..s.job(16, 16) };
+    for d in [&thread as &dyn Draw, &Cpu] {
+        match d.draw(&[s.job(16, 16), bad]) {
+            Err(RenderError::InvalidJob { job: 1, .. }) => {}
+            other => panic!("{}: {:?}", d.describe(), other.map(|f| f.len())),
+        }
+    }
+    assert_eq!(thread.draw(&requests[1]).unwrap(), alone[1], "still serving");
+    assert!(thread.draw(&[]).unwrap().is_empty());
+}

@@ -5,7 +5,7 @@
 use facerecon_fit::camera::CropCamera;
 use facerecon_model::lit::LitFace;
 use facerecon_model::{Coefficients, DisplacementMap, Extent, Mesh, ModelError, MorphableModel};
-use facerecon_raster::{Camera, RenderError, RenderJob, cpu};
+use facerecon_raster::{Camera, Draw, RenderError, RenderJob, cpu};
 use facerecon_vision::crop::{CROP_SIZE, CropTransform};
 use image::RgbImage;
 
@@ -166,10 +166,25 @@ const PAD: f32 = 1.6;
 
 /// The photo with every fitted face's mesh blended over it (`opacity` ∈ [0, 1]), shaded so
 /// that the shape reads (grey, light from the upper front). Each face is rendered in its
-/// own crop frame at about the photo's resolution, then mapped onto the photo.
-pub fn overlay(model: &MorphableModel, recon: &Reconstruction, opacity: f32) -> Result<RgbImage, RenderError> {
+/// own crop frame at about the photo's resolution, then mapped onto the photo; all faces
+/// go to `draw` in one call.
+pub fn overlay(
+    model: &MorphableModel,
+    recon: &Reconstruction,
+    opacity: f32,
+    draw: &dyn Draw,
+) -> Result<RgbImage, RenderError> {
     let mut out = recon.image.clone();
     let opacity = opacity.clamp(0.0, 1.0);
+    struct Tile {
+        lit: LitFace,
+        colors: Vec<[f32; 3]>,
+        camera: Camera,
+        crop: CropTransform,
+        side: u32,
+        full: u32,
+    }
+    let mut tiles = Vec::new();
     for face in &recon.faces {
         let Ok(fit) = &face.fit else { continue };
         let Ok(lit) = fit_lit_face(model, fit) else { continue };
@@ -181,22 +196,27 @@ pub fn overlay(model: &MorphableModel, recon: &Reconstruction, opacity: f32) -> 
         let full = (side as f32 * PAD).round() as u32;
         let zoom = side as f64 / CROP_SIZE as f64;
         let camera = fit.camera.resampled(zoom, 0.5 * (full as f64 - side as f64), full);
-        let frame = render_face(model, &lit, &colors, camera.scene_camera_for(&fit.coefficients), full)?;
-        blend(&mut out, &frame, &face.crop, side, full, opacity);
+        let camera = camera.scene_camera_for(&fit.coefficients);
+        tiles.push(Tile { lit, colors, camera, crop: face.crop, side, full });
+    }
+    let jobs: Vec<RenderJob> = tiles.iter().map(|t| face_job(model, &t.lit, &t.colors, t.camera, t.full)).collect();
+    let frames = draw.draw(&jobs)?;
+    for (t, frame) in tiles.iter().zip(&frames) {
+        blend(&mut out, frame, &t.crop, t.side, t.full, opacity);
     }
     Ok(out)
 }
 
 /// The face area of `lit` with per-vertex `colors`, seen by `camera`, in a `size`² image:
-/// the one render call behind the overlay, the side-by-side and the quality figures.
-fn render_face(
-    model: &MorphableModel,
-    lit: &LitFace,
-    colors: &[[f32; 3]],
+/// the one job behind the overlay, the side-by-side and the quality figures.
+fn face_job<'a>(
+    model: &'a MorphableModel,
+    lit: &'a LitFace,
+    colors: &'a [[f32; 3]],
     camera: Camera,
     size: u32,
-) -> Result<facerecon_raster::Frame, RenderError> {
-    cpu::render(&RenderJob {
+) -> RenderJob<'a> {
+    RenderJob {
         positions: &lit.positions,
         triangles: model.extent_triangles(Extent::Face),
         colors,
@@ -204,7 +224,18 @@ fn render_face(
         camera,
         width: size,
         height: size,
-    })
+    }
+}
+
+/// [`face_job`] rendered by the CPU rasteriser (single frames: the quality figures).
+fn render_face(
+    model: &MorphableModel,
+    lit: &LitFace,
+    colors: &[[f32; 3]],
+    camera: Camera,
+    size: u32,
+) -> Result<facerecon_raster::Frame, RenderError> {
+    cpu::render(&face_job(model, lit, colors, camera, size))
 }
 
 /// Grey shading of camera-space normals: ambient plus a light from the upper front.
@@ -294,27 +325,48 @@ pub fn render_coefficients(
 
 /// The thesis' Figure 3.6 layout, one row per fitted face, each tile the face's 224² crop:
 /// photo | reconstruction over the photo (albedo × shading) | shape (grey) | albedo |
-/// shading (the light on a mid-grey albedo). Empty (`None`) when no face was fitted.
-pub fn side_by_side(model: &MorphableModel, recon: &Reconstruction) -> Result<Option<RgbImage>, RenderError> {
-    let fitted: Vec<&FaceRecon> = recon.faces.iter().filter(|f| f.fit.is_ok()).collect();
-    if fitted.is_empty() {
-        return Ok(None);
-    }
+/// shading (the light on a mid-grey albedo). Empty (`None`) when no face was fitted. Every
+/// tile of every face goes to `draw` in one call.
+pub fn side_by_side(
+    model: &MorphableModel,
+    recon: &Reconstruction,
+    draw: &dyn Draw,
+) -> Result<Option<RgbImage>, RenderError> {
     let s = CROP_SIZE;
-    let mut out = RgbImage::from_pixel(5 * s + 16, fitted.len() as u32 * (s + 4), image::Rgb([255, 255, 255]));
-    for (row, face) in fitted.iter().enumerate() {
+    struct Row {
+        photo: RgbImage,
+        lit: LitFace,
+        /// Grey shape, then shading on a mid-grey albedo (so that shading above 1 shows).
+        grey: Vec<[f32; 3]>,
+        shading: Vec<[f32; 3]>,
+        camera: Camera,
+    }
+    let mut rows = Vec::new();
+    for face in &recon.faces {
         let Ok(fit) = &face.fit else { continue };
-        let photo = facerecon_vision::crop::crop_face(&recon.image, &face.face.landmark_box).image;
         let Ok(lit) = fit_lit_face(model, fit) else { continue };
-        // Shading on a mid-grey albedo, so that shading above 1 still shows.
+        let photo = facerecon_vision::crop::crop_face(&recon.image, &face.face.landmark_box).image;
         let white = vec![[0.5f32; 3]; lit.positions.len()];
         let shading = facerecon_model::scene::shade(&white, &lit.normals, &fit.coefficients.light);
         let grey = shape_shading(&lit.normals);
         let camera = fit.camera.resampled(s as f64 / CROP_SIZE as f64, 0.0, s).scene_camera_for(&fit.coefficients);
-        let render = |colors: &[[f32; 3]]| render_face(model, &lit, colors, camera, s);
-        let tiles = [render(&lit.colors)?, render(&grey)?, render(&lit.albedo)?, render(&shading)?];
+        rows.push(Row { photo, lit, grey, shading, camera });
+    }
+    if rows.is_empty() {
+        return Ok(None);
+    }
+    const TILES: usize = 4;
+    let jobs: Vec<RenderJob> = rows
+        .iter()
+        .flat_map(|r| {
+            [&r.lit.colors, &r.grey, &r.lit.albedo, &r.shading].map(|c| face_job(model, &r.lit, c, r.camera, s))
+        })
+        .collect();
+    let frames = draw.draw(&jobs)?;
+    let mut out = RgbImage::from_pixel(5 * s + 16, rows.len() as u32 * (s + 4), image::Rgb([255, 255, 255]));
+    for (row, (r, tiles)) in rows.iter().zip(frames.chunks(TILES)).enumerate() {
         let y0 = row as u32 * (s + 4);
-        image::imageops::replace(&mut out, &photo, 0, y0 as i64);
+        image::imageops::replace(&mut out, &r.photo, 0, y0 as i64);
         for (k, frame) in tiles.iter().enumerate() {
             let x0 = (k as u32 + 1) * (s + 4);
             for y in 0..s {
@@ -324,7 +376,7 @@ pub fn side_by_side(model: &MorphableModel, recon: &Reconstruction) -> Result<Op
                         let c = frame.color[i];
                         image::Rgb([c[0], c[1], c[2]])
                     } else if k == 0 {
-                        *photo.get_pixel(x, y)
+                        *r.photo.get_pixel(x, y)
                     } else {
                         image::Rgb([255, 255, 255])
                     };

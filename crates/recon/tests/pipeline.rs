@@ -82,7 +82,7 @@ fn annotated_and_detected_faces_are_fitted_and_exported() {
         // Camera-space mesh in front of the camera, at a face's distance.
         assert!(mesh.positions.iter().all(|q| q[2] < -100.0 && q[2] > -2000.0));
 
-        let ov = outputs::overlay(p.model(), &r, 0.85).unwrap();
+        let ov = outputs::overlay(p.model(), &r, 0.85, &facerecon_raster::draw::Cpu).unwrap();
         assert_eq!(ov.dimensions(), r.image.dimensions());
         assert_ne!(ov, r.image, "{name}: the overlay draws the face");
     }
@@ -101,7 +101,7 @@ fn the_coarse_fit_lowers_its_loss_and_keeps_the_landmarks() {
     assert!(ph.color_l1 < 0.12, "{ph:?}");
     assert!(nme(&fit.fitted_landmarks[17..], &truth[17..]) < 0.04);
     assert_ne!(fit.coefficients.albedo, fit.landmark_fit.coefficients.albedo);
-    let sbs = outputs::side_by_side(p.model(), &r).unwrap().unwrap();
+    let sbs = outputs::side_by_side(p.model(), &r, &facerecon_raster::draw::Cpu).unwrap().unwrap();
     assert_eq!(sbs.dimensions(), (5 * 224 + 16, 228));
 }
 

@@ -41,6 +41,9 @@ struct Args {
     /// Number of distinct photos cycled through.
     #[arg(long, default_value_t = 16)]
     photos: usize,
+    /// Ask for the overlay and side-by-side pictures too (the output stage's rendering).
+    #[arg(long)]
+    pictures: bool,
     /// `landmarks` or `coarse`.
     #[arg(long, default_value = "landmarks")]
     refine: String,
@@ -98,6 +101,8 @@ struct Tally {
     faces: u64,
     codes: std::collections::BTreeMap<String, u64>,
     unexpected: Vec<String>,
+    /// The server's own output-stage seconds (`timing.outputs_s`) of good answers.
+    outputs_s: Vec<f64>,
 }
 
 fn main() -> anyhow::Result<()> {
@@ -124,23 +129,30 @@ async fn run(args: Args) -> anyhow::Result<()> {
     let measuring = Arc::new(AtomicBool::new(false));
     let stop = Arc::new(AtomicBool::new(false));
     let counter = Arc::new(AtomicU64::new(0));
+    let args_pictures = args.pictures;
     let mut workers = Vec::new();
     for w in 0..args.concurrency {
         let (client, photos, tally, measuring, stop, counter) =
             (client.clone(), photos.clone(), tally.clone(), measuring.clone(), stop.clone(), counter.clone());
         workers.push(tokio::spawn(async move {
-            let options = pb::Options { refine, ..Default::default() };
+            let outputs =
+                args_pictures.then(|| pb::Outputs { overlay: true, side_by_side: true, ..Default::default() });
+            let options = pb::Options { refine, outputs, ..Default::default() };
             while !stop.load(Ordering::Relaxed) {
                 let n = counter.fetch_add(1, Ordering::Relaxed);
                 let photo = photos[(n as usize + w) % photos.len()].clone();
                 let kind = if soak { n % 10 } else { 0 };
                 let t = Instant::now();
                 // Soak mix: 0–5 good, 6 bad bytes, 7 cancelled by the client, 8–9 a stream.
+                let mut outputs_s = None;
                 let (code, faces, expected): (String, u64, &[&str]) = match kind {
                     0..=5 => {
                         match client.reconstruct(Request::new(n.to_string(), photo).with_options(options.clone())).await
                         {
-                            Ok(r) => ("Ok".into(), r.faces.len() as u64, &["Ok"]),
+                            Ok(r) => {
+                                outputs_s = r.timing.map(|t| t.outputs_s);
+                                ("Ok".into(), r.faces.len() as u64, &["Ok"])
+                            }
                             Err(e) => (e.code().map_or("client".into(), |c| format!("{c:?}")), 0, &["Ok"]),
                         }
                     }
@@ -193,6 +205,7 @@ async fn run(args: Args) -> anyhow::Result<()> {
                     let mut t = tally.lock().await;
                     if kind <= 5 && code == "Ok" {
                         t.latencies.push(dt);
+                        t.outputs_s.extend(outputs_s);
                     }
                     t.faces += faces;
                     if !expected.contains(&code.as_str()) {
@@ -236,6 +249,7 @@ async fn run(args: Args) -> anyhow::Result<()> {
     }
     let mut t = tally.lock().await;
     t.latencies.sort_by(f64::total_cmp);
+    t.outputs_s.sort_by(f64::total_cmp);
     let ok = t.latencies.len() as f64;
     let batch = match (before, after) {
         (Some(b), Some(a)) => {
@@ -263,6 +277,7 @@ async fn run(args: Args) -> anyhow::Result<()> {
         "p50_ms": (percentile(&t.latencies, 50.0) * 1e4).round() / 10.0,
         "p90_ms": (percentile(&t.latencies, 90.0) * 1e4).round() / 10.0,
         "p99_ms": (percentile(&t.latencies, 99.0) * 1e4).round() / 10.0,
+        "outputs_p50_ms": (percentile(&t.outputs_s, 50.0) * 1e4).round() / 10.0,
         "codes": t.codes,
         "unexpected": t.unexpected.len(),
         "unexpected_examples": t.unexpected.iter().take(5).collect::<Vec<_>>(),
@@ -271,12 +286,13 @@ async fn run(args: Args) -> anyhow::Result<()> {
         "server_rss_samples_mib": rss_samples.iter().map(|(s, k)| serde_json::json!([s, (*k as f64 / 1024.0 * 10.0).round() / 10.0])).collect::<Vec<_>>(),
     });
     eprintln!(
-        "{} c={}: {:.2} photos/s, p50 {:.1} ms, p99 {:.1} ms, codes {:?}, unexpected {}",
+        "{} c={}: {:.2} photos/s, p50 {:.1} ms, p99 {:.1} ms, outputs p50 {:.1} ms, codes {:?}, unexpected {}",
         args.label,
         args.concurrency,
         ok / elapsed,
         percentile(&t.latencies, 50.0) * 1e3,
         percentile(&t.latencies, 99.0) * 1e3,
+        percentile(&t.outputs_s, 50.0) * 1e3,
         t.codes,
         t.unexpected.len()
     );
