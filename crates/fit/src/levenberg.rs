@@ -225,7 +225,7 @@ fn jacobian(
                 let nv = f.normals[v];
                 if m_len[v] > 0.0 && m_len[v].is_finite() {
                     let gm = (g_n - nv * nv.dot(g_n)) / m_len[v];
-                    for &ti in &t.vertex_triangles[v] {
+                    for &ti in t.vertex_triangles.of(v) {
                         let [a0, b0, c0] = t.triangles[ti as usize].map(|i| i as usize);
                         let (e1, e2) = (f.points[b0] - f.points[a0], f.points[c0] - f.points[a0]);
                         let (g1, g2) = (e2.cross(gm), gm.cross(e1));

@@ -219,7 +219,7 @@ pub(crate) struct Target<'a> {
     /// not skin-coloured).
     pub(crate) features: Vec<bool>,
     /// Per vertex: the triangles around it (a vertex's normal depends on their corners).
-    pub(crate) vertex_triangles: Vec<Vec<u32>>,
+    pub(crate) vertex_triangles: &'a facerecon_model::morphable::VertexTriangles,
 }
 
 impl<'a> Target<'a> {
@@ -260,18 +260,7 @@ impl<'a> Target<'a> {
             landmarks,
             landmark_vertices,
             skin: None,
-            vertex_triangles: {
-                let tris = model.extent_triangles(Extent::Face);
-                let mut around = vec![Vec::new(); nv];
-                for (k, t) in tris.iter().enumerate() {
-                    for &v in t {
-                        if let Some(a) = around.get_mut(v as usize) {
-                            a.push(k as u32);
-                        }
-                    }
-                }
-                around
-            },
+            vertex_triangles: model.face_vertex_triangles(),
             features: {
                 let (eyes, mouth) = (model.mask(facerecon_model::Mask::Eyes), model.mask(facerecon_model::Mask::Mouth));
                 eyes.iter().zip(mouth).map(|(e, m)| *e != 0 || *m != 0).collect()

@@ -162,6 +162,56 @@ pub struct MorphableModel {
     /// Vertex-major copies of the face-area shape and albedo bases, derived from `parts`
     /// on first use (Jacobians; shared by clones).
     by_vertex: std::sync::OnceLock<std::sync::Arc<[VertexMajorBasis; 2]>>,
+    /// The triangles around each face-area vertex, built on first use.
+    around: std::sync::OnceLock<std::sync::Arc<VertexTriangles>>,
+}
+
+/// Per vertex, the triangles that use it, in compressed rows (one allocation for all).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct VertexTriangles {
+    /// Vertex `v`'s triangles are `triangles[offsets[v]..offsets[v + 1]]`, ascending.
+    offsets: Vec<u32>,
+    triangles: Vec<u32>,
+}
+
+impl VertexTriangles {
+    /// The triangles of `triangles` around each of `vertex_count` vertices (corners at or
+    /// past `vertex_count` are ignored).
+    pub fn new(vertex_count: usize, triangles: &[[u32; 3]]) -> Self {
+        let mut counts = vec![0u32; vertex_count + 1];
+        for &v in triangles.iter().flatten() {
+            if let Some(c) = counts.get_mut(v as usize + 1).filter(|_| (v as usize) < vertex_count) {
+                *c += 1;
+            }
+        }
+        for v in 0..vertex_count {
+            counts[v + 1] += counts[v];
+        }
+        let offsets = counts;
+        let mut next = offsets.clone();
+        let mut out = vec![0u32; offsets[vertex_count] as usize];
+        for (k, t) in triangles.iter().enumerate() {
+            for &v in t {
+                if (v as usize) < vertex_count {
+                    out[next[v as usize] as usize] = k as u32;
+                    next[v as usize] += 1;
+                }
+            }
+        }
+        VertexTriangles { offsets, triangles: out }
+    }
+
+    /// The triangles around vertex `v` (empty past the last vertex).
+    pub fn of(&self, v: usize) -> &[u32] {
+        match (self.offsets.get(v), self.offsets.get(v + 1)) {
+            (Some(&a), Some(&b)) => &self.triangles[a as usize..b as usize],
+            _ => &[],
+        }
+    }
+
+    pub fn vertex_count(&self) -> usize {
+        self.offsets.len() - 1
+    }
 }
 
 /// Two models are equal when their file contents are (everything else is derived).
@@ -254,7 +304,7 @@ impl MorphableModel {
         crate::format::validate(&meta, &parts)?;
         let vertex_uvs = vertex_uvs(&parts);
         let face_bases = FaceBases::new(&meta, &parts);
-        Ok(Self { meta, parts, vertex_uvs, face_bases, by_vertex: Default::default() })
+        Ok(Self { meta, parts, vertex_uvs, face_bases, by_vertex: Default::default(), around: Default::default() })
     }
 
     pub fn meta(&self) -> &ModelMeta {
@@ -345,6 +395,13 @@ impl MorphableModel {
     /// The face area's albedo basis vertex-major (colour channels for axes).
     pub fn face_albedo_by_vertex(&self) -> &VertexMajorBasis {
         &self.by_vertex()[1]
+    }
+    /// The face area's triangles around each face-area vertex (a vertex's normal depends on
+    /// their corners); built on the first call.
+    pub fn face_vertex_triangles(&self) -> &VertexTriangles {
+        self.around.get_or_init(|| {
+            std::sync::Arc::new(VertexTriangles::new(self.meta.face_vertex_count, self.extent_triangles(Extent::Face)))
+        })
     }
     fn by_vertex(&self) -> &[VertexMajorBasis; 2] {
         self.by_vertex.get_or_init(|| {

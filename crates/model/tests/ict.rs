@@ -362,3 +362,22 @@ fn compact_copy_halves_the_file_and_rounds_only_the_bases() {
     }
     assert!(back != *m, "the bases did change");
 }
+
+/// The triangles around each face vertex, against a scan of every triangle for every
+/// vertex (a brute-force oracle), on the real model.
+#[test]
+fn face_vertex_triangles_match_a_scan() {
+    let m = facerecon_model::ict::load_default().unwrap();
+    let around = m.face_vertex_triangles();
+    let nv = m.meta().face_vertex_count;
+    assert_eq!(around.vertex_count(), nv);
+    let tris = m.extent_triangles(facerecon_model::Extent::Face);
+    for v in (0..nv).step_by(97).chain([0, nv - 1]) {
+        let scan: Vec<u32> = (0..tris.len() as u32).filter(|&k| tris[k as usize].contains(&(v as u32))).collect();
+        assert_eq!(around.of(v), scan.as_slice(), "vertex {v}");
+    }
+    assert!(around.of(nv).is_empty());
+    // Corners past the vertex count are ignored; repeated corners count once per corner.
+    let t = facerecon_model::morphable::VertexTriangles::new(3, &[[0, 1, 2], [2, 3, 4], [1, 1, 0]]);
+    assert_eq!((t.of(0), t.of(1), t.of(2)), (&[0, 2][..], &[0, 2, 2][..], &[0, 1][..]));
+}
