@@ -30,6 +30,16 @@ fn bad_configuration_exits_with_a_clear_message() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("/nonexistent/model.safetensors"));
 }
 
+/// A client of the server on `port`; its calls retry UNAVAILABLE while the model loads.
+async fn client(port: u16) -> Client {
+    Client::connect(
+        &[format!("http://127.0.0.1:{port}")],
+        ConnectOptions { retries: 12, backoff: Duration::from_millis(250), ..Default::default() },
+    )
+    .await
+    .unwrap()
+}
+
 fn scrape(port: u16) -> String {
     let mut s = std::net::TcpStream::connect(("127.0.0.1", port)).unwrap();
     write!(s, "GET /metrics HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n").unwrap();
@@ -53,12 +63,7 @@ fn sigterm_drains_in_flight_work_and_metrics_are_exported() {
     let rt = tokio::runtime::Builder::new_multi_thread().enable_all().build().unwrap();
     let photo = std::fs::read(&facerecon_tests::photos(1)[0]).unwrap();
     rt.block_on(async {
-        let c = Client::connect(
-            &[format!("http://127.0.0.1:{port}")],
-            ConnectOptions { retries: 12, backoff: Duration::from_millis(250), ..Default::default() },
-        )
-        .await
-        .unwrap();
+        let c = client(port).await;
         // Retries while the model loads.
         let r = c.reconstruct(Request::new("warm", photo.clone())).await.unwrap();
         assert_eq!(r.faces.len(), 1);
@@ -177,12 +182,7 @@ fn spans_are_exported_over_otlp() {
         .unwrap();
     let photo = std::fs::read(&facerecon_tests::photos(1)[0]).unwrap();
     rt.block_on(async {
-        let c = Client::connect(
-            &[format!("http://127.0.0.1:{port}")],
-            ConnectOptions { retries: 12, backoff: Duration::from_millis(250), ..Default::default() },
-        )
-        .await
-        .unwrap();
+        let c = client(port).await;
         let r = c.reconstruct(Request::new("otlp-42", photo)).await.unwrap();
         assert_eq!(r.faces.len(), 1);
     });

@@ -47,15 +47,8 @@ pub fn fit(
     start: &Coefficients,
     settings: &PhotometricSettings,
 ) -> Result<PhotometricFit, FitError> {
-    let deadline = Instant::now() + settings.time_budget;
-    let (objective, x) = Objective::start(model, crop, camera, landmarks, landmark_vertices, settings, start)?;
-    let run = minimise(&objective, x, settings.iterations, deadline)?;
-    Ok(PhotometricFit {
-        coefficients: objective.layout.unflatten(&run.x, start),
-        iterations: run.losses.len(),
-        losses: run.losses,
-        photometric_l1: run.l1,
-    })
+    let inputs = crate::photometric::SingleLevel { model, crop, camera, landmarks, landmark_vertices, start, settings };
+    inputs.run(minimise)
 }
 
 /// Minimises `objective` from `x` by Levenberg–Marquardt: at most `iterations` attempts,

@@ -709,15 +709,46 @@ pub fn fit_adam(
     start: &Coefficients,
     settings: &PhotometricSettings,
 ) -> Result<PhotometricFit, FitError> {
-    let deadline = Instant::now() + settings.time_budget;
-    let (objective, x) = Objective::start(model, crop, camera, landmarks, landmark_vertices, settings, start)?;
-    let run = adam(&objective, x, settings.iterations, deadline)?;
-    Ok(PhotometricFit {
-        coefficients: objective.layout.unflatten(&run.x, start),
-        iterations: run.losses.len(),
-        losses: run.losses,
-        photometric_l1: run.l1,
-    })
+    let inputs = SingleLevel { model, crop, camera, landmarks, landmark_vertices, start, settings };
+    inputs.run(adam)
+}
+
+/// The inputs of a fit on the crop alone, by one optimiser ([`fit_adam`],
+/// [`crate::levenberg::fit`]).
+pub(crate) struct SingleLevel<'a> {
+    pub(crate) model: &'a MorphableModel,
+    pub(crate) crop: &'a RgbImage,
+    pub(crate) camera: &'a CropCamera,
+    pub(crate) landmarks: &'a [[f32; 2]],
+    pub(crate) landmark_vertices: &'a [u32],
+    pub(crate) start: &'a Coefficients,
+    pub(crate) settings: &'a PhotometricSettings,
+}
+
+/// An optimiser: at most `iterations` from `x`, none started after the deadline.
+pub(crate) type Optimise = fn(&Objective, Vec<f64>, usize, Instant) -> Result<Run, FitError>;
+
+impl SingleLevel<'_> {
+    pub(crate) fn run(&self, optimise: Optimise) -> Result<PhotometricFit, FitError> {
+        let s = self.settings;
+        let deadline = Instant::now() + s.time_budget;
+        let (objective, x) = Objective::start(
+            self.model,
+            self.crop,
+            self.camera,
+            self.landmarks,
+            self.landmark_vertices,
+            s,
+            self.start,
+        )?;
+        let run = optimise(&objective, x, s.iterations, deadline)?;
+        Ok(PhotometricFit {
+            coefficients: objective.layout.unflatten(&run.x, self.start),
+            iterations: run.losses.len(),
+            losses: run.losses,
+            photometric_l1: run.l1,
+        })
+    }
 }
 
 /// Minimises `objective` from `x` by Adam: at most `iterations` steps, none started after
