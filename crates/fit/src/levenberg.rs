@@ -270,16 +270,32 @@ mod tests {
     use facerecon_vision::crop;
     use facerecon_vision::face::FaceBox;
 
-    #[test]
-    fn it_minimises_the_coarse_fits_own_loss() {
-        let model = facerecon_model::ict::load_default().unwrap();
+    /// A synthetic face (bucket 0, yaw ≤ 30°), its 224² crop, the exact landmarks in the
+    /// crop, the photo's camera seen through the crop, and the landmark fit: where a coarse
+    /// fit starts.
+    pub(super) struct Case {
+        pub(super) s: facerecon_synth::Sample,
+        pub(super) cr: crop::Crop,
+        pub(super) in_crop: Vec<[f32; 2]>,
+        pub(super) camera: CropCamera,
+        pub(super) lf: crate::LandmarkFit,
+    }
+
+    pub(super) fn case(model: &MorphableModel, seed: u64, index: u64) -> Case {
         let config = SynthConfig { buckets: vec![0], yaw_max_deg: 30.0, ..Default::default() };
-        let s = Generator::new(&model, config).unwrap().sample(3, 0).unwrap();
+        let s = Generator::new(model, config).unwrap().sample(seed, index).unwrap();
         let pts: Vec<[f32; 2]> = s.truth.landmarks.iter().map(|l| l.xy).collect();
         let cr = crop::crop_face(&s.image, &FaceBox::of_points(pts.iter().copied()).unwrap());
         let in_crop: Vec<[f32; 2]> = pts.iter().map(|p| cr.transform.to_crop(*p)).collect();
         let camera = CropCamera::of_photo(s.image.width(), s.image.height(), &cr.transform, crop::CROP_SIZE);
-        let lf = crate::LandmarkFitter::new(&model).unwrap().fit(&camera, &in_crop, None).unwrap();
+        let lf = crate::LandmarkFitter::new(model).unwrap().fit(&camera, &in_crop, None).unwrap();
+        Case { s, cr, in_crop, camera, lf }
+    }
+
+    #[test]
+    fn it_minimises_the_coarse_fits_own_loss() {
+        let model = facerecon_model::ict::load_default().unwrap();
+        let Case { s: _, cr, in_crop, camera, lf } = case(&model, 3, 0);
         let settings = PhotometricSettings { iterations: 25, ..Default::default() };
         let adam = crate::photometric::fit_adam(
             &model,
@@ -310,9 +326,6 @@ mod tests {
 #[cfg(test)]
 mod jacobian_tests {
     use super::*;
-    use facerecon_synth::{Generator, SynthConfig};
-    use facerecon_vision::crop;
-    use facerecon_vision::face::FaceBox;
 
     /// The curvature's Jacobian rows (colour through albedo, light, normals and barycentrics;
     /// landmarks through the projection) against central differences of the residuals
@@ -321,13 +334,7 @@ mod jacobian_tests {
     #[test]
     fn jacobian_rows_match_finite_differences() {
         let model = facerecon_model::ict::load_default().unwrap();
-        let config = SynthConfig { buckets: vec![0], yaw_max_deg: 30.0, ..Default::default() };
-        let s = Generator::new(&model, config).unwrap().sample(5, 1).unwrap();
-        let pts: Vec<[f32; 2]> = s.truth.landmarks.iter().map(|l| l.xy).collect();
-        let cr = crop::crop_face(&s.image, &FaceBox::of_points(pts.iter().copied()).unwrap());
-        let in_crop: Vec<[f32; 2]> = pts.iter().map(|p| cr.transform.to_crop(*p)).collect();
-        let camera = CropCamera::of_photo(s.image.width(), s.image.height(), &cr.transform, crop::CROP_SIZE);
-        let lf = crate::LandmarkFitter::new(&model).unwrap().fit(&camera, &in_crop, None).unwrap();
+        let super::tests::Case { s, cr, in_crop, camera, lf } = super::tests::case(&model, 5, 1);
         let settings = PhotometricSettings { skin_mask: false, ..Default::default() };
         // The truth's albedo and light, so that colours and shading are not flat.
         let mut start = lf.coefficients.clone();
