@@ -17,10 +17,11 @@
 //! * [`barycentric`] — a pixel's perspective-correct barycentrics as a function of its
 //!   triangle's corners (homogeneous rasterisation), and their VJP: how the photometric
 //!   loss reaches vertex positions inside triangles.
-//!
-//! Still to come: the analytic antialiasing at silhouette edges (the gradients of the
-//! photometric term at occlusion boundaries).
+//! * [`antialias`] — colours blended across silhouette edges by where each edge crosses
+//!   between two pixel centres (nvdiffrast's analytic antialiasing), and the VJP with
+//!   respect to the edge's projected vertices: how the loss reaches the outline.
 
+pub mod antialias;
 pub mod barycentric;
 pub mod displace;
 pub mod interpolate;

@@ -164,6 +164,15 @@ pub struct MorphableModel {
     by_vertex: std::sync::OnceLock<std::sync::Arc<[VertexMajorBasis; 2]>>,
     /// The triangles around each face-area vertex, built on first use.
     around: std::sync::OnceLock<std::sync::Arc<VertexTriangles>>,
+    /// The face area's edges shared by two triangles, built on first use.
+    inner_edges: std::sync::OnceLock<std::sync::Arc<[InnerEdge]>>,
+}
+
+/// An edge shared by exactly two triangles: its vertices and the two triangles.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct InnerEdge {
+    pub vertices: [u32; 2],
+    pub triangles: [u32; 2],
 }
 
 /// Per vertex, the triangles that use it, in compressed rows (one allocation for all).
@@ -211,6 +220,26 @@ impl VertexTriangles {
 
     pub fn vertex_count(&self) -> usize {
         self.offsets.len() - 1
+    }
+
+    /// Every edge of `triangles` (the list this was built from) shared by exactly two of
+    /// them, once each, lower triangle first; border edges (one triangle) and non-manifold
+    /// ones (three or more) are left out.
+    pub fn inner_edges(&self, triangles: &[[u32; 3]]) -> Vec<InnerEdge> {
+        let mut out = Vec::with_capacity(triangles.len() * 3 / 2);
+        for (t, tri) in triangles.iter().enumerate() {
+            for k in 0..3 {
+                let (i, j) = (tri[k], tri[(k + 1) % 3]);
+                let mut shared =
+                    self.of(i as usize).iter().filter(|u| **u as usize != t && self.of(j as usize).contains(u));
+                if let (Some(&u), None) = (shared.next(), shared.next())
+                    && u as usize > t
+                {
+                    out.push(InnerEdge { vertices: [i, j], triangles: [t as u32, u] });
+                }
+            }
+        }
+        out
     }
 }
 
@@ -304,7 +333,15 @@ impl MorphableModel {
         crate::format::validate(&meta, &parts)?;
         let vertex_uvs = vertex_uvs(&parts);
         let face_bases = FaceBases::new(&meta, &parts);
-        Ok(Self { meta, parts, vertex_uvs, face_bases, by_vertex: Default::default(), around: Default::default() })
+        Ok(Self {
+            meta,
+            parts,
+            vertex_uvs,
+            face_bases,
+            by_vertex: Default::default(),
+            around: Default::default(),
+            inner_edges: Default::default(),
+        })
     }
 
     pub fn meta(&self) -> &ModelMeta {
@@ -402,6 +439,12 @@ impl MorphableModel {
         self.around.get_or_init(|| {
             std::sync::Arc::new(VertexTriangles::new(self.meta.face_vertex_count, self.extent_triangles(Extent::Face)))
         })
+    }
+    /// The face area's edges shared by two of its triangles ([`VertexTriangles::inner_edges`]:
+    /// where an outline can run); built on the first call.
+    pub fn face_inner_edges(&self) -> &[InnerEdge] {
+        self.inner_edges
+            .get_or_init(|| self.face_vertex_triangles().inner_edges(self.extent_triangles(Extent::Face)).into())
     }
     fn by_vertex(&self) -> &[VertexMajorBasis; 2] {
         self.by_vertex.get_or_init(|| {

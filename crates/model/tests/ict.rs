@@ -381,3 +381,28 @@ fn face_vertex_triangles_match_a_scan() {
     let t = facerecon_model::morphable::VertexTriangles::new(3, &[[0, 1, 2], [2, 3, 4], [1, 1, 0]]);
     assert_eq!((t.of(0), t.of(1), t.of(2)), (&[0, 2][..], &[0, 2, 2][..], &[0, 1][..]));
 }
+
+/// The face area's inner edges against a count of every triangle's edges in a map (an
+/// independent oracle): the edges used by exactly two triangles, with those triangles.
+#[test]
+fn face_inner_edges_match_a_count() {
+    let m = facerecon_model::ict::load_default().unwrap();
+    let tris = m.extent_triangles(facerecon_model::Extent::Face);
+    let mut count: std::collections::HashMap<[u32; 2], Vec<u32>> = std::collections::HashMap::new();
+    for (t, tri) in tris.iter().enumerate() {
+        for k in 0..3 {
+            let (a, b) = (tri[k], tri[(k + 1) % 3]);
+            count.entry([a.min(b), a.max(b)]).or_default().push(t as u32);
+        }
+    }
+    let mut want: Vec<([u32; 2], Vec<u32>)> = count.into_iter().filter(|(_, t)| t.len() == 2).collect();
+    want.sort();
+    let mut got: Vec<([u32; 2], Vec<u32>)> = m
+        .face_inner_edges()
+        .iter()
+        .map(|e| ([e.vertices[0].min(e.vertices[1]), e.vertices[0].max(e.vertices[1])], e.triangles.to_vec()))
+        .collect();
+    got.sort();
+    assert!(got.len() > tris.len(), "{} inner edges for {} triangles", got.len(), tris.len());
+    assert_eq!(got, want);
+}
