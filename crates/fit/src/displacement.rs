@@ -127,7 +127,7 @@ pub fn fit(
     let started = Instant::now();
     let mut losses = Vec::new();
     let (mut l1_start, mut l1_last) = (f64::NAN, f64::NAN);
-    let mut fp = Vec::new();
+    let mut fp = crate::photometric::Footprint::default();
     let window = 40;
     for it in 0..settings.iterations {
         if started.elapsed() > settings.time_budget {

@@ -61,7 +61,7 @@ pub(crate) fn minimise(
 ) -> Result<Run, FitError> {
     let l = objective.layout;
     let mut losses = Vec::new();
-    let mut fp = Vec::new();
+    let mut fp = Footprint::default();
     let mut mu = 0.1;
     let mut current = objective.evaluate(&x, &mut fp, true, true)?;
     let mut last_l1 = current.l1;
@@ -120,9 +120,9 @@ pub(crate) fn minimise(
 /// The reweighted Gauss–Newton curvature `Σ w·JᵀJ + 2Λ` at `x` (module docs).
 fn curvature(objective: &Objective, f: &Forward, fp: &Footprint) -> Result<DMatrix<f64>, FitError> {
     let (st, l) = (objective.settings, objective.layout);
-    let stride = fp.len().div_ceil(CURVATURE_PIXELS).max(1);
-    let rows_px: Vec<&(usize, [(u32, f64); 3])> = fp.iter().step_by(stride).collect();
-    let pixel_weight = st.lambda_ph / st.sigma_ph / fp.len() as f64 * stride as f64;
+    let stride = fp.pixels.len().div_ceil(CURVATURE_PIXELS).max(1);
+    let rows_px: Vec<&(usize, [(u32, f64); 3])> = fp.pixels.iter().step_by(stride).collect();
+    let pixel_weight = st.lambda_ph / st.sigma_ph / fp.pixels.len() as f64 * stride as f64;
     let (mut jt, residuals) = jacobian(objective, f, &rows_px)?;
     let n_px = 3 * rows_px.len();
     for (i, r) in residuals.iter().enumerate() {
@@ -264,7 +264,7 @@ fn jacobian(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use facerecon_synth::{Generator, SynthConfig};
     use facerecon_vision::crop;
@@ -273,15 +273,15 @@ mod tests {
     /// A synthetic face (bucket 0, yaw ≤ 30°), its 224² crop, the exact landmarks in the
     /// crop, the photo's camera seen through the crop, and the landmark fit: where a coarse
     /// fit starts.
-    pub(super) struct Case {
-        pub(super) s: facerecon_synth::Sample,
-        pub(super) cr: crop::Crop,
-        pub(super) in_crop: Vec<[f32; 2]>,
-        pub(super) camera: CropCamera,
-        pub(super) lf: crate::LandmarkFit,
+    pub(crate) struct Case {
+        pub(crate) s: facerecon_synth::Sample,
+        pub(crate) cr: crop::Crop,
+        pub(crate) in_crop: Vec<[f32; 2]>,
+        pub(crate) camera: CropCamera,
+        pub(crate) lf: crate::LandmarkFit,
     }
 
-    pub(super) fn case(model: &MorphableModel, seed: u64, index: u64) -> Case {
+    pub(crate) fn case(model: &MorphableModel, seed: u64, index: u64) -> Case {
         let config = SynthConfig { buckets: vec![0], yaw_max_deg: 30.0, ..Default::default() };
         let s = Generator::new(model, config).unwrap().sample(seed, index).unwrap();
         let pts: Vec<[f32; 2]> = s.truth.landmarks.iter().map(|l| l.xy).collect();
@@ -348,7 +348,7 @@ mod jacobian_tests {
         x[e] = 0.3;
         let f = objective.forward(&x).unwrap();
         let fp = objective.target.footprint(&f.points).unwrap();
-        let pixels: Vec<&(usize, [(u32, f64); 3])> = fp.iter().step_by(fp.len() / 9).take(9).collect();
+        let pixels: Vec<&(usize, [(u32, f64); 3])> = fp.pixels.iter().step_by(fp.pixels.len() / 9).take(9).collect();
         let (jt, res) = jacobian(&objective, &f, &pixels).unwrap();
         let residuals = |x: &[f64]| -> Vec<f64> {
             let t = &objective.target;

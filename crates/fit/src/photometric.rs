@@ -15,8 +15,11 @@
 //! Coarse to fine: the same loss on the crop shrunk 8× and 4× first, then on the crop
 //! ([`PhotometricSettings::pyramid`]; one level at a time, where DESIGN §6 sums the levels'
 //! terms: decision 0703, "The pyramid"). The region is the rendered part of the model's
-//! narrow face mask, kept to skin-coloured pixels ([`Target::estimate_skin`]); no background
-//! likelihood, no silhouette term and no antialiasing gradient yet.
+//! narrow face mask, kept to skin-coloured pixels ([`Target::estimate_skin`]). Where the
+//! region meets its own outline (a turned cheek, the side of the nose), the colours are
+//! blended across the silhouette edges ([`crate::decoder::antialias`],
+//! [`PhotometricSettings::antialias`]), so the term moves the outline too. No background
+//! likelihood and no silhouette (IoU) term yet: both need a mask of the face in the photo.
 //! Every run has an iteration cap, a time budget and a stopping rule (less than 0.1 % of
 //! the loss gained over 20 iterations).
 
@@ -29,7 +32,7 @@ use glam::DVec3;
 use image::RgbImage;
 
 use crate::camera::CropCamera;
-use crate::decoder::{barycentric, interpolate, linear::Linear, normals, pose, project, shading};
+use crate::decoder::{antialias, barycentric, interpolate, linear::Linear, normals, pose, project, shading};
 use crate::error::FitError;
 
 /// How the coarse fit minimises its loss (decision 0701 measures the two).
@@ -63,6 +66,10 @@ pub struct PhotometricSettings {
     pub skin_sigmas: f64,
     /// σph of Eq. 3.5.
     pub sigma_ph: f64,
+    /// Blend the colours at the face's silhouette edges by where the edges cross between
+    /// pixel centres ([`crate::decoder::antialias`]), so that the photometric term reaches
+    /// the outline's vertices.
+    pub antialias: bool,
     /// Iterations on the crop itself, the last pyramid level.
     pub iterations: usize,
     /// Coarse to fine: iterations on the crop shrunk by each of [`PYRAMID_FACTORS`] (28²
@@ -99,6 +106,7 @@ impl Default for PhotometricSettings {
             skin_mask: true,
             skin_sigmas: 5.0,
             sigma_ph: 0.043,
+            antialias: true,
             iterations: 20,
             pyramid: [20, 20],
             time_budget: Duration::from_secs(10),
@@ -197,7 +205,40 @@ impl Adam {
 }
 
 /// A covered pixel's index and its triangle's (vertex, barycentric) corners.
-pub(crate) type Footprint = Vec<(usize, [(u32, f64); 3])>;
+pub(crate) type Covered = (usize, [(u32, f64); 3]);
+
+/// A footprint pixel's triangle corners, their barycentrics and the colour there.
+#[derive(Clone, Copy)]
+struct Rendered {
+    tri: [usize; 3],
+    b: [f64; 3],
+    colour: DVec3,
+}
+
+/// The pixels the photometric term compares, from one rendering.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct Footprint {
+    /// The region's covered pixels.
+    pub(crate) pixels: Vec<Covered>,
+    /// Silhouette crossings whose front pixel is one of `pixels` (with
+    /// [`PhotometricSettings::antialias`]; empty otherwise).
+    pub(crate) edges: Vec<antialias::Crossing>,
+    /// Per crop pixel: its index in `pixels` plus one, 0 when it is not there (empty
+    /// without edges).
+    slot: Vec<u32>,
+}
+
+impl Footprint {
+    /// A footprint of `pixels` alone (no silhouette crossings).
+    pub(crate) fn of(pixels: Vec<Covered>) -> Self {
+        Footprint { pixels, ..Default::default() }
+    }
+
+    /// Where crop pixel `pix` is in [`Self::pixels`].
+    fn slot(&self, pix: usize) -> Option<usize> {
+        self.slot.get(pix).and_then(|&s| s.checked_sub(1)).map(|s| s as usize)
+    }
+}
 
 /// What the photometric and landmark terms share between the coarse and displacement fits:
 /// the crop as linear-scale colours, the cameras, and the region mask.
@@ -220,6 +261,10 @@ pub(crate) struct Target<'a> {
     pub(crate) features: Vec<bool>,
     /// Per vertex: the triangles around it (a vertex's normal depends on their corners).
     pub(crate) vertex_triangles: &'a facerecon_model::morphable::VertexTriangles,
+    /// Whether footprints carry the silhouette crossings ([`PhotometricSettings::antialias`]).
+    pub(crate) antialias: bool,
+    /// The face area's edges shared by two triangles (where an outline can run).
+    pub(crate) inner_edges: &'a [facerecon_model::morphable::InnerEdge],
 }
 
 impl<'a> Target<'a> {
@@ -261,6 +306,8 @@ impl<'a> Target<'a> {
             landmark_vertices,
             skin: None,
             vertex_triangles: model.face_vertex_triangles(),
+            antialias: false,
+            inner_edges: model.face_inner_edges(),
             features: {
                 let (eyes, mouth) = (model.mask(facerecon_model::Mask::Eyes), model.mask(facerecon_model::Mask::Mouth));
                 eyes.iter().zip(mouth).map(|(e, m)| *e != 0 || *m != 0).collect()
@@ -286,7 +333,7 @@ impl<'a> Target<'a> {
             (y, 0.564 * (c.z - y), 0.713 * (c.x - y))
         };
         let samples: Vec<(f64, f64, f64)> =
-            fp.iter().filter(|(_, c)| !self.on_features(c)).map(|(pix, _)| ycc(self.colors[*pix])).collect();
+            fp.pixels.iter().filter(|(_, c)| !self.on_features(c)).map(|(pix, _)| ycc(self.colors[*pix])).collect();
         if samples.len() < 100 {
             return;
         }
@@ -340,19 +387,35 @@ impl<'a> Target<'a> {
             height: self.height,
         };
         let vb = cpu::rasterize(&job).map_err(|e| FitError::Diverged(format!("rendering: {e}")))?;
-        let mut fp = interpolate::footprint(&vb, self.triangles);
-        fp.retain(|(_, c)| c.iter().all(|(v, _)| self.region.get(*v as usize).is_some_and(|m| *m != 0)));
+        let mut pixels = interpolate::footprint(&vb, self.triangles);
+        pixels.retain(|(_, c)| c.iter().all(|(v, _)| self.region.get(*v as usize).is_some_and(|m| *m != 0)));
         if let Some(skin) = &self.skin {
-            fp.retain(|(pix, c)| skin.get(*pix).copied().unwrap_or(false) || self.on_features(c));
+            pixels.retain(|(pix, c)| skin.get(*pix).copied().unwrap_or(false) || self.on_features(c));
         }
-        if fp.is_empty() {
+        if pixels.is_empty() {
             return Err(FitError::Diverged("the face covers no pixel of the crop".into()));
+        }
+        let mut fp = Footprint::of(pixels);
+        if self.antialias {
+            fp.slot = vec![0; vb.triangle.len()];
+            for (k, (pix, _)) in fp.pixels.iter().enumerate() {
+                fp.slot[*pix] = k as u32 + 1;
+            }
+            let projected = project::forward(&self.crop_camera, y);
+            let slot = &fp.slot;
+            fp.edges =
+                antialias::find(&vb, self.triangles, self.vertex_triangles, self.inner_edges, &projected, |front| {
+                    slot[front] != 0
+                });
         }
         Ok(fp)
     }
 
     /// `λph/σph · mean over the footprint of ‖I(X) − Ī‖₁`, with exact barycentrics
-    /// recomputed in f64 from `y` (only the triangle id comes from the footprint). Adds its
+    /// recomputed in f64 from `y` (only the triangle id comes from the footprint), and the
+    /// footprint's silhouette crossings blended in ([`antialias`]: a crossing changes its
+    /// front pixel, or its back pixel, which counts as the photo's own colour when it is
+    /// not in the footprint; the sum stays divided by the footprint's size). Adds its
     /// gradient to `g_colors` and `g_y`; returns the loss and the mean absolute colour
     /// difference per channel.
     pub(crate) fn photometric(
@@ -364,28 +427,100 @@ impl<'a> Target<'a> {
         g_colors: &mut [DVec3],
         g_y: &mut [DVec3],
     ) -> (f64, f64) {
-        let scale = weight / fp.len() as f64;
-        let mut l1 = 0.0;
-        for (pix, corners) in fp {
-            let tri = [corners[0].0 as usize, corners[1].0 as usize, corners[2].0 as usize];
-            let (px, py) = ((*pix as u32 % self.width) as f64, (*pix as u32 / self.width) as f64);
-            let ray = barycentric::pixel_ray(px, py, self.width, self.height);
-            let corners_p = [y[tri[0]], y[tri[1]], y[tri[2]]];
-            let Some(b) = barycentric::forward(&self.clip, ray, corners_p) else { continue };
-            let value = colors[tri[0]] * b[0] + colors[tri[1]] * b[1] + colors[tri[2]] * b[2];
-            let d = value - self.colors[*pix];
-            l1 += d.x.abs() + d.y.abs() + d.z.abs();
-            let gi = DVec3::new(d.x.signum(), d.y.signum(), d.z.signum()) * scale;
-            for k in 0..3 {
-                g_colors[tri[k]] += gi * b[k];
+        let n = fp.pixels.len();
+        let scale = weight / n as f64;
+        let pixel_xy = |pix: usize| [(pix as u32 % self.width) as f64, (pix as u32 / self.width) as f64];
+        // The rendered colour of every footprint pixel (None where its ray misses its triangle).
+        let rendered: Vec<Option<Rendered>> = fp
+            .pixels
+            .iter()
+            .map(|(pix, corners)| {
+                let tri = [corners[0].0 as usize, corners[1].0 as usize, corners[2].0 as usize];
+                let [px, py] = pixel_xy(*pix);
+                let ray = barycentric::pixel_ray(px, py, self.width, self.height);
+                let b = barycentric::forward(&self.clip, ray, [y[tri[0]], y[tri[1]], y[tri[2]]])?;
+                Some(Rendered { tri, b, colour: colors[tri[0]] * b[0] + colors[tri[1]] * b[1] + colors[tri[2]] * b[2] })
+            })
+            .collect();
+        let mut residual: Vec<Option<DVec3>> =
+            fp.pixels.iter().zip(&rendered).map(|((pix, _), r)| r.map(|r| r.colour - self.colors[*pix])).collect();
+        // Where a silhouette blend's change went: a footprint pixel (its slot), or a pixel
+        // outside the footprint (its index in `outside`, whose residual starts at zero).
+        enum At {
+            Slot(usize),
+            Outside(usize),
+        }
+        let colour_at = |pix: usize| match fp.slot(pix) {
+            Some(k) => rendered[k].map(|r| r.colour),
+            None => Some(self.colors[pix]),
+        };
+        let mut outside: Vec<(usize, DVec3)> = Vec::new();
+        let mut blends = Vec::with_capacity(fp.edges.len());
+        for x in &fp.edges {
+            let (Some(front), Some(back)) = (colour_at(x.front), colour_at(x.back)) else { continue };
+            let [a, b] = x.edge.map(|v| self.crop_camera.project(y[v as usize]));
+            let (Some(a), Some(b)) = (a, b) else { continue };
+            let Some((side, delta)) = antialias::forward(pixel_xy(x.front), x.step, a, b, front, back) else {
+                continue;
+            };
+            let target = if side == antialias::Side::Front { x.front } else { x.back };
+            let at = match fp.slot(target) {
+                Some(k) => {
+                    let Some(r) = residual[k].as_mut() else { continue };
+                    *r += delta;
+                    At::Slot(k)
+                }
+                None => match outside.iter_mut().position(|(p, _)| *p == target) {
+                    Some(i) => {
+                        outside[i].1 += delta;
+                        At::Outside(i)
+                    }
+                    None => {
+                        outside.push((target, delta));
+                        At::Outside(outside.len() - 1)
+                    }
+                },
+            };
+            blends.push((x, [a, b], front, back, at));
+        }
+        let sign = |d: DVec3| DVec3::new(d.x.signum(), d.y.signum(), d.z.signum()) * scale;
+        let l1: f64 =
+            residual.iter().flatten().chain(outside.iter().map(|(_, d)| d)).map(|d| d.abs().element_sum()).sum();
+        // Colour gradients per footprint pixel: its own residual's, then the blends'.
+        let mut g_pixel: Vec<DVec3> = residual.iter().map(|r| r.map(sign).unwrap_or(DVec3::ZERO)).collect();
+        for (x, [a, b], front, back, at) in blends {
+            let g = match at {
+                At::Slot(k) => residual[k].map(sign).unwrap_or(DVec3::ZERO),
+                At::Outside(i) => sign(outside[i].1),
+            };
+            let grad = antialias::vjp(pixel_xy(x.front), x.step, a, b, front, back, g);
+            for (pix, gc) in [(x.front, grad.front), (x.back, grad.back)] {
+                if let Some(k) = fp.slot(pix) {
+                    g_pixel[k] += gc;
+                }
             }
+            for (v, gp) in x.edge.iter().zip([grad.a, grad.b]) {
+                let p = y[*v as usize];
+                if p.z < 0.0 {
+                    let j = self.crop_camera.jacobian(p);
+                    g_y[*v as usize] += DVec3::from(j[0]) * gp[0] + DVec3::from(j[1]) * gp[1];
+                }
+            }
+        }
+        for (((pix, _), r), gi) in fp.pixels.iter().zip(&rendered).zip(&g_pixel) {
+            let Some(Rendered { tri, b, .. }) = r else { continue };
+            for k in 0..3 {
+                g_colors[tri[k]] += *gi * b[k];
+            }
+            let [px, py] = pixel_xy(*pix);
+            let ray = barycentric::pixel_ray(px, py, self.width, self.height);
             let gb = [gi.dot(colors[tri[0]]), gi.dot(colors[tri[1]]), gi.dot(colors[tri[2]])];
-            let gp = barycentric::vjp(&self.clip, ray, corners_p, gb);
+            let gp = barycentric::vjp(&self.clip, ray, [y[tri[0]], y[tri[1]], y[tri[2]]], gb);
             for k in 0..3 {
                 g_y[tri[k]] += gp[k];
             }
         }
-        (weight * l1 / fp.len() as f64, l1 / (3.0 * fp.len() as f64))
+        (weight * l1 / n as f64, l1 / (3.0 * n as f64))
     }
 
     /// `λlms/68 · Σ‖π(y_j) − l_j‖₁` (crop pixels), its gradient added to `g_y`.
@@ -529,6 +664,7 @@ impl<'a> Objective<'a> {
         }
         let mut objective =
             Self::new(model, crop, camera, crate::camera::distance(start), landmarks, landmark_vertices, settings)?;
+        objective.target.antialias = settings.antialias;
         let x = objective.layout.flatten(start);
         if settings.skin_mask {
             let points = objective.forward(&x)?.points;
@@ -643,6 +779,35 @@ impl<'a> Objective<'a> {
     }
 }
 
+/// The crop pixels the fit's photometric term compares at `end`, per crop pixel: the
+/// rendered narrow face region of `end`, kept to the skin colours estimated at `start`
+/// (with [`PhotometricSettings::skin_mask`]) and to eyes and mouth, as [`fit`] run from
+/// `start` compares them on the crop. What "inside the fit's own mask" means in an
+/// evaluation. Arguments as [`fit`]'s.
+#[allow(clippy::too_many_arguments)]
+pub fn region(
+    model: &MorphableModel,
+    crop: &RgbImage,
+    camera: &CropCamera,
+    landmarks: &[[f32; 2]],
+    landmark_vertices: &[u32],
+    start: &Coefficients,
+    end: &Coefficients,
+    settings: &PhotometricSettings,
+) -> Result<Vec<bool>, FitError> {
+    let (objective, _) = Objective::start(model, crop, camera, landmarks, landmark_vertices, settings, start)?;
+    if end.layout() != model.layout() {
+        return Err(FitError::Model("end coefficients do not match the model".into()));
+    }
+    let points = objective.forward(&objective.layout.flatten(end))?.points;
+    let fp = objective.target.footprint(&points)?;
+    let mut mask = vec![false; crop.width() as usize * crop.height() as usize];
+    for (pix, _) in &fp.pixels {
+        mask[*pix] = true;
+    }
+    Ok(mask)
+}
+
 /// Fits `start` (e.g. the landmark fit) to `crop` (the face's 224² crop) and its 68
 /// landmarks in crop pixels, whose model vertices are `landmark_vertices`, with the
 /// settings' optimiser, coarse to fine ([`PhotometricSettings::pyramid`]).
@@ -669,7 +834,7 @@ pub fn fit(
             continue;
         }
         if losses.is_empty() {
-            losses.push(objective.evaluate(&x, &mut Vec::new(), true, false)?.loss);
+            losses.push(objective.evaluate(&x, &mut Footprint::default(), true, false)?.loss);
         }
         let level = Level::new(crop, camera, landmarks, factor);
         // The landmark term in the crop's pixels whatever the level.
@@ -765,7 +930,7 @@ fn adam(objective: &Objective, mut x: Vec<f64>, iterations: usize, deadline: Ins
     ];
     let mut losses = Vec::new();
     let mut last_l1 = f64::NAN;
-    let mut fp = Vec::new();
+    let mut fp = Footprint::default();
     for it in 0..iterations {
         if Instant::now() > deadline {
             break;
@@ -815,7 +980,7 @@ mod skin_tests {
         let mut target = Target::new(&model, &crop, &CropCamera::crop(), 500.0, &landmarks, &vertices).unwrap();
         // Every pixel covered by one triangle of plain skin vertices (no eyes, no mouth).
         let v = (0..target.features.len()).find(|&v| !target.features[v]).unwrap() as u32;
-        let fp: Footprint = (0..224 * 224).map(|p| (p, [(v, 1.0), (v, 0.0), (v, 0.0)])).collect();
+        let fp = Footprint::of((0..224 * 224).map(|p| (p, [(v, 1.0), (v, 0.0), (v, 0.0)])).collect());
         target.estimate_skin(&fp, 3.0);
         let skin = target.skin.as_ref().unwrap();
         let at = |x: usize, y: usize| skin[y * 224 + x];
@@ -857,5 +1022,72 @@ mod pyramid_tests {
                 assert!((level.landmarks[0][a] as f64 - want[a]).abs() < 1e-4);
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod antialias_tests {
+    use super::*;
+
+    /// The photometric term with the silhouette blends: its gradient with respect to the
+    /// positions and colours against central differences of the term itself, on one
+    /// footprint (a synthetic face turned so that its cheek is an outline).
+    #[test]
+    fn photometric_gradient_with_silhouette_blends_matches_finite_differences() {
+        let model = facerecon_model::ict::load_default().unwrap();
+        let crate::levenberg::tests::Case { s, cr, in_crop, camera, lf } = crate::levenberg::tests::case(&model, 5, 1);
+        let settings = PhotometricSettings { skin_mask: false, ..Default::default() };
+        let mut start = lf.coefficients.clone();
+        start.albedo = s.truth.coefficients.albedo.clone();
+        start.light = s.truth.coefficients.light;
+        start.rotation[1] += 0.5;
+        let (objective, x) =
+            Objective::start(&model, &cr.image, &camera, &in_crop, &lf.vertices, &settings, &start).unwrap();
+        let f = objective.forward(&x).unwrap();
+        let t = &objective.target;
+        let fp = t.footprint(&f.points).unwrap();
+        assert!(fp.edges.len() > 20, "{} silhouette crossings", fp.edges.len());
+        let loss = |y: &[DVec3], c: &[DVec3]| {
+            let n = y.len();
+            t.photometric(&fp, y, c, 1.0, &mut vec![DVec3::ZERO; n], &mut vec![DVec3::ZERO; n]).0
+        };
+        let n = f.points.len();
+        let (mut gc, mut gy) = (vec![DVec3::ZERO; n], vec![DVec3::ZERO; n]);
+        t.photometric(&fp, &f.points, &f.colors, 1.0, &mut gc, &mut gy);
+        // Directions on the outline's vertices only, then on every vertex.
+        let mut rng = 77u64;
+        let mut u = || {
+            rng = rng.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((rng >> 11) as f64) / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let on_edges: std::collections::HashSet<u32> = fp.edges.iter().flat_map(|x| x.edge).collect();
+        for (what, only_edges) in [("outline vertices", true), ("every vertex", false)] {
+            let dy: Vec<DVec3> = (0..n)
+                .map(|v| {
+                    let d = DVec3::new(u(), u(), u());
+                    if !only_edges || on_edges.contains(&(v as u32)) { d } else { DVec3::ZERO }
+                })
+                .collect();
+            let dc: Vec<DVec3> = (0..n).map(|_| DVec3::new(u(), u(), u()) * 0.1).collect();
+            let h = 1e-6;
+            let shifted = |s: f64| {
+                let y: Vec<DVec3> = f.points.iter().zip(&dy).map(|(p, d)| *p + *d * s).collect();
+                let c: Vec<DVec3> = f.colors.iter().zip(&dc).map(|(p, d)| *p + *d * s).collect();
+                loss(&y, &c)
+            };
+            let numeric = (shifted(h) - shifted(-h)) / (2.0 * h);
+            let analytic: f64 = gy.iter().zip(&dy).map(|(g, d)| g.dot(*d)).sum::<f64>()
+                + gc.iter().zip(&dc).map(|(g, d)| g.dot(*d)).sum::<f64>();
+            assert!(
+                (analytic - numeric).abs() <= 1e-4 * numeric.abs().max(analytic.abs()),
+                "{what}: analytic {analytic} vs finite difference {numeric}"
+            );
+        }
+        // The blends are what moves the outline: without them its vertices' gradient differs.
+        let plain = Footprint::of(fp.pixels.clone());
+        let mut gy_plain = vec![DVec3::ZERO; n];
+        t.photometric(&plain, &f.points, &f.colors, 1.0, &mut vec![DVec3::ZERO; n], &mut gy_plain);
+        let moved = on_edges.iter().filter(|&&v| (gy[v as usize] - gy_plain[v as usize]).length() > 1e-9).count();
+        assert!(moved * 2 > on_edges.len(), "{moved} of {} outline vertices", on_edges.len());
     }
 }
