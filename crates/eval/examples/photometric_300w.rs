@@ -8,7 +8,11 @@
 //!
 //! With `--encoder W` (weights file; ONNX Runtime), the encoder alone and encoder + coarse
 //! fit on the same crops too. Every level also reports its fitted landmarks' NME against the
-//! annotation (all 68, by √(w·h) of the annotated box) and its seconds per face.
+//! annotation (all 68, by √(w·h) of the annotated box) and its seconds per face, and the
+//! landmark, coarse and full levels PSNR and SSIM inside the fit's own mask too: the pixels
+//! the coarse fit compares (`photometric::region`: the narrow face region kept to the skin
+//! colours estimated at its start, and eyes and mouth), without the occluders, brows and
+//! beards the skin mask leaves out.
 //!
 //!     cargo run --release -p facerecon-eval --example photometric_300w -- \
 //!         [--subset afw/ …] [--limit N] [--full [--smooth λ] [--magnitude λ] [--lr mm] [--iterations N]] \
@@ -88,21 +92,23 @@ fn main() {
     let names = ["landmarks", "coarse", "full", "encoder", "encoder + coarse"];
     let slot = |run: usize| if run < 2 { run } else { run + 1 };
     let start = std::time::Instant::now();
-    // Per photo: per slot [PSNR, SSIM, NME68, seconds]; displacement summary.
-    let results: Vec<([[f64; 4]; 5], [f64; 3], f64)> = rows
+    // Per photo: per slot [PSNR, SSIM, NME68, seconds, PSNR and SSIM in the fit's own
+    // mask]; displacement summary.
+    let results: Vec<([[f64; 6]; 5], [f64; 3], f64)> = rows
         .par_iter()
         .filter_map(|rel| {
             let img = photos.join(rel);
             let bytes = std::fs::read(&img).ok()?;
             let pts = facerecon_vision::pts::read(&std::fs::read(img.with_extension("pts")).ok()?).ok()?;
-            let mut out = [[f64::NAN; 4]; 5];
+            let mut out = [[f64::NAN; 6]; 5];
             let mut extra = [f64::NAN; 3];
             let mut extra_range = f64::NAN;
             let score = |r: &facerecon_recon::Reconstruction,
                          face: &facerecon_recon::FaceRecon,
                          fit: &facerecon_recon::FaceFit|
-             -> Option<[f64; 3]> {
-                let photo = facerecon_vision::crop::crop_face(&r.image, &face.face.landmark_box).image;
+             -> Option<[f64; 5]> {
+                let cr = facerecon_vision::crop::crop_face(&r.image, &face.face.landmark_box);
+                let photo = &cr.image;
                 let (frame, mask) = outputs::render_reconstruction(&model, fit).ok()?;
                 let a: Vec<[f32; 3]> = photo.pixels().map(|p| p.0.map(|c| c as f32 / 255.0)).collect();
                 let b: Vec<[f32; 3]> =
@@ -110,7 +116,31 @@ fn main() {
                 let (ra, rb) =
                     (Rgb { width: 224, height: 224, pixels: &a }, Rgb { width: 224, height: 224, pixels: &b });
                 let nme = facerecon_eval::landmarks::nme68(&fit.fitted_landmarks, &pts)?;
-                Some([psnr(&ra, &rb, &mask)?, ssim(&ra, &rb, &mask)?, nme])
+                // The fit's own mask, from the landmark fit it starts from.
+                let own = (fit.start == Start::Landmarks)
+                    .then(|| {
+                        let in_crop: Vec<[f32; 2]> = pts.iter().map(|p| cr.transform.to_crop(*p)).collect();
+                        let start = &fit.landmark_fit.coefficients;
+                        let lv = &fit.landmark_fit.vertices;
+                        facerecon_fit::photometric::region(
+                            &model,
+                            photo,
+                            &fit.camera,
+                            &in_crop,
+                            lv,
+                            start,
+                            &fit.coefficients,
+                            &pipeline.photometric,
+                        )
+                        .ok()
+                    })
+                    .flatten()
+                    .map(|region| region.iter().zip(&mask).map(|(a, b)| *a && *b).collect::<Vec<bool>>());
+                let (po, so) = match &own {
+                    Some(m) => (psnr(&ra, &rb, m).unwrap_or(f64::NAN), ssim(&ra, &rb, m).unwrap_or(f64::NAN)),
+                    None => (f64::NAN, f64::NAN),
+                };
+                Some([psnr(&ra, &rb, &mask)?, ssim(&ra, &rb, &mask)?, nme, po, so])
             };
             for (k, &(start, refine)) in runs.iter().enumerate() {
                 let o =
@@ -127,12 +157,12 @@ fn main() {
                 if refine == Refine::Full {
                     // The coarse level is the same fit without its map.
                     let coarse = facerecon_recon::FaceFit { displacement: None, ..fit.clone() };
-                    let [p, q, n] = score(&r, face, &coarse)?;
-                    out[1] = [p, q, n, f64::NAN];
+                    let [p, q, n, po, so] = score(&r, face, &coarse)?;
+                    out[1] = [p, q, n, f64::NAN, po, so];
                 }
-                let [p, q, n] = score(&r, face, fit)?;
+                let [p, q, n, po, so] = score(&r, face, fit)?;
                 // The full level has its own slot (2); its coarse figure went to slot 1 above.
-                out[if refine == Refine::Full { 2 } else { slot(k) }] = [p, q, n, seconds];
+                out[if refine == Refine::Full { 2 } else { slot(k) }] = [p, q, n, seconds, po, so];
                 if slot(k) == 1 {
                     // How much of the fitted albedo lies outside [0, 1] (what λrange acts on).
                     let a = model.albedo(&fit.coefficients.albedo, facerecon_model::Extent::Face).ok()?;
@@ -143,10 +173,12 @@ fn main() {
             Some((out, extra, extra_range))
         })
         .collect();
+    // Mean and median over the photos that have the figure (NaN when none has).
     let stat = |k: usize, m: usize| {
-        let mut v: Vec<f64> = results.iter().map(|r| r.0[k][m]).collect();
+        let mut v: Vec<f64> = results.iter().map(|r| r.0[k][m]).filter(|x| !x.is_nan()).collect();
         v.sort_by(f64::total_cmp);
-        (v.iter().sum::<f64>() / v.len().max(1) as f64, v.get(v.len() / 2).copied().unwrap_or(f64::NAN))
+        let mean = if v.is_empty() { f64::NAN } else { v.iter().sum::<f64>() / v.len() as f64 };
+        (mean, v.get(v.len() / 2).copied().unwrap_or(f64::NAN))
     };
     println!(
         "photometric quality inside the narrow face region, {} of {} photos ({:.0} s)",
@@ -161,8 +193,15 @@ fn main() {
             let (n, nm) = stat(k, 2);
             let (t, _) = stat(k, 3);
             let time = if t.is_nan() { String::new() } else { format!(", {t:.2} s per face") };
+            let (po, pom) = stat(k, 4);
+            let (so, som) = stat(k, 5);
+            let own = if po.is_nan() {
+                String::new()
+            } else {
+                format!("; in the fit's own mask PSNR {po:.2} dB (median {pom:.2}), SSIM {so:.3} (median {som:.3})")
+            };
             println!(
-                "  {:16}: PSNR {p:.2} dB (median {pm:.2}), SSIM {s:.3} (median {sm:.3}), NME68 {:.2} % (median {:.2} %){time}",
+                "  {:16}: PSNR {p:.2} dB (median {pm:.2}), SSIM {s:.3} (median {sm:.3}), NME68 {:.2} % (median {:.2} %){time}{own}",
                 names[k],
                 100.0 * n,
                 100.0 * nm

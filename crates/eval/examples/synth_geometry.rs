@@ -11,14 +11,15 @@
 //!         [--buckets 0,1,2,3] [--sigma S] [--lambda-id L] [--lambda-exp L] [--coarse [--iterations N] [--pyramid A,B]] \
 //!         [--full [--smooth λ] [--lr mm]] [--optimiser adam|lm] [--ph-lambda-id λ] [--ph-lambda-exp λ] \
 //!         [--encoder WEIGHTS] [--occlude] [--no-skin-mask] [--map-skin-mask] [--skin-sigmas K] \
-//!         [--max-image-side PX] [--truth-start]
+//!         [--no-antialias] [--max-image-side PX] [--truth-start]
 //!
 //! `--coarse` adds the photometric fit started from the exact landmarks' landmark fit
 //! (`--iterations` on the crop, `--pyramid A,B` on its 8× and 4× shrunk copies first);
 //! `--full` the displacement map on it too (the coarse figure then comes from the same run).
 //! `--occlude` draws an occluder over each face (`facerecon_synth::occluder`: up to a quarter
 //! of its landmark box); `--no-skin-mask` turns the coarse fit's skin mask off,
-//! `--map-skin-mask` turns the displacement stage's on.
+//! `--map-skin-mask` turns the displacement stage's on; `--no-antialias` the coarse fit's
+//! silhouette blends off.
 //! `--max-image-side PX` caps the drawn photo size (default 1024): small photos around a face
 //! give it strong perspective, large ones weak.
 //! `--truth-start` adds the coarse fit started from the ground truth's own coefficients:
@@ -83,6 +84,9 @@ struct Row {
     encoder_seconds: Vec<[f64; 2]>,
     /// Inner-49 NME of the detected landmarks against the truth's (visible faces).
     landmark_nme: Vec<f64>,
+    /// With `--occlude --full`: the displacement map's mean |offset| (mm) at the visible
+    /// narrow-face vertices under the occluder, and at the others.
+    map_occluded: Vec<[f64; 2]>,
 }
 
 fn main() {
@@ -120,6 +124,10 @@ fn main() {
         }
         if a == "--map-skin-mask" {
             displacement.skin_mask = true;
+            continue;
+        }
+        if a == "--no-antialias" {
+            photometric.antialias = false;
             continue;
         }
         let v = args.next().unwrap_or_else(|| panic!("{a} needs a value"));
@@ -186,6 +194,7 @@ fn main() {
             .into_par_iter()
             .map(|i| {
                 let mut s = generator.sample(seed * 100 + bucket as u64, i).expect("sample");
+                let clean = s.image.clone();
                 if occlude {
                     // An occluder over the face's landmark box (the ground truth stays the face's).
                     let b = FaceBox::of_points(s.truth.landmarks.iter().map(|l| l.xy)).expect("box");
@@ -223,6 +232,15 @@ fn main() {
                     }
                     if let Some(d) = &f.displacement {
                         row.full.push(errors(&model, &f.coefficients, Some(&d.map), &truth));
+                        if occlude {
+                            row.map_occluded.extend(map_under_occluder(
+                                &model,
+                                &f.coefficients,
+                                &d.map,
+                                &clean,
+                                &s.image,
+                            ));
+                        }
                     }
                 }
                 if truth_start {
@@ -334,6 +352,15 @@ fn main() {
         }
         if full {
             println!("  bucket {bucket}: full fit (coarse + displacement map): {}", fmt(all(|r| &r.full)));
+            if occlude {
+                let m = means(&all(|r| &r.map_occluded));
+                println!(
+                    "  bucket {bucket}: displacement map, mean |offset| at visible narrow-face vertices: under the occluder {:.3} mm, elsewhere {:.3} mm ({} faces)",
+                    m[0],
+                    m[1],
+                    all(|r| &r.map_occluded).len()
+                );
+            }
         }
         let lm: Vec<f64> = rows.iter().flat_map(|r| r.landmark_nme.iter().copied()).collect();
         let lm_nme =
@@ -351,4 +378,53 @@ fn main() {
         "(each cell: mean / median over faces of the per-face mean distance; {:.0} s)",
         start.elapsed().as_secs_f64()
     );
+}
+
+/// The displacement map's mean |offset| (mm) over the fitted face's visible narrow-face
+/// vertices (facing the camera) whose pixel the occluder covers (where `occluded` differs
+/// from `clean`), and over the other visible ones. `None` when either set is empty.
+/// Synthetic faces have no detail beyond the model, so a map should stay near zero: what
+/// it gains under the occluder is the occluder drawn into the face.
+fn map_under_occluder(
+    model: &MorphableModel,
+    c: &Coefficients,
+    map: &DisplacementMap,
+    clean: &image::RgbImage,
+    occluded: &image::RgbImage,
+) -> Option<[f64; 2]> {
+    let shape = model.shape(&c.identity, &c.expression, Extent::Face).ok()?;
+    let r = facerecon_model::scene::Pose::from_coefficients(c).matrix();
+    let t = glam::Vec3::from(c.translation);
+    let points: Vec<glam::Vec3> = shape.iter().map(|p| r * glam::Vec3::from(*p) + t).collect();
+    let normals = facerecon_model::scene::vertex_normals(
+        &points.iter().map(|p| p.to_array()).collect::<Vec<_>>(),
+        model.extent_triangles(Extent::Face),
+    );
+    // The photo's own camera (DESIGN §4: fov 30° over its height, on-axis).
+    let (w, h) = clean.dimensions();
+    let camera = facerecon_fit::camera::CropCamera {
+        k: 0.5 * h as f64 * facerecon_model::scene::Camera::default().focal() as f64,
+        c: [0.5 * w as f64 - 0.5, 0.5 * h as f64 - 0.5],
+        size: h,
+    };
+    let narrow = model.mask(facerecon_model::Mask::NarrowFace);
+    let uvs = model.vertex_uvs();
+    let mut sums = [(0.0, 0usize); 2];
+    for (v, p) in points.iter().enumerate() {
+        let n = glam::Vec3::from(normals[v]);
+        if narrow.get(v).is_none_or(|m| *m == 0) || n.dot(*p) >= 0.0 {
+            continue;
+        }
+        let Some(q) = camera.project(p.as_dvec3()) else { continue };
+        let (x, y) = (q[0].round(), q[1].round());
+        if x < 0.0 || y < 0.0 || x >= w as f64 || y >= h as f64 {
+            continue;
+        }
+        let under = clean.get_pixel(x as u32, y as u32) != occluded.get_pixel(x as u32, y as u32);
+        let Some(uv) = uvs.get(v) else { continue };
+        let k = usize::from(!under);
+        sums[k].0 += map.sample(*uv).abs() as f64;
+        sums[k].1 += 1;
+    }
+    (sums[0].1 > 0 && sums[1].1 > 0).then(|| sums.map(|(s, n)| s / n as f64))
 }
