@@ -261,10 +261,9 @@ pub(crate) struct Target<'a> {
     pub(crate) features: Vec<bool>,
     /// Per vertex: the triangles around it (a vertex's normal depends on their corners).
     pub(crate) vertex_triangles: &'a facerecon_model::morphable::VertexTriangles,
-    /// Whether footprints carry the silhouette crossings ([`PhotometricSettings::antialias`]).
-    pub(crate) antialias: bool,
-    /// The face area's edges shared by two triangles (where an outline can run).
-    pub(crate) inner_edges: &'a [facerecon_model::morphable::InnerEdge],
+    /// Which triangles meet at each edge, when footprints carry the silhouette crossings
+    /// ([`PhotometricSettings::antialias`]).
+    pub(crate) adjacency: Option<antialias::Adjacency>,
 }
 
 impl<'a> Target<'a> {
@@ -306,8 +305,7 @@ impl<'a> Target<'a> {
             landmark_vertices,
             skin: None,
             vertex_triangles: model.face_vertex_triangles(),
-            antialias: false,
-            inner_edges: model.face_inner_edges(),
+            adjacency: None,
             features: {
                 let (eyes, mouth) = (model.mask(facerecon_model::Mask::Eyes), model.mask(facerecon_model::Mask::Mouth));
                 eyes.iter().zip(mouth).map(|(e, m)| *e != 0 || *m != 0).collect()
@@ -396,17 +394,14 @@ impl<'a> Target<'a> {
             return Err(FitError::Diverged("the face covers no pixel of the crop".into()));
         }
         let mut fp = Footprint::of(pixels);
-        if self.antialias {
+        if let Some(adjacency) = &self.adjacency {
             fp.slot = vec![0; vb.triangle.len()];
             for (k, (pix, _)) in fp.pixels.iter().enumerate() {
                 fp.slot[*pix] = k as u32 + 1;
             }
             let projected = project::forward(&self.crop_camera, y);
             let slot = &fp.slot;
-            fp.edges =
-                antialias::find(&vb, self.triangles, self.vertex_triangles, self.inner_edges, &projected, |front| {
-                    slot[front] != 0
-                });
+            fp.edges = antialias::find(&vb, self.triangles, adjacency, &projected, |front| slot[front] != 0);
         }
         Ok(fp)
     }
@@ -664,7 +659,10 @@ impl<'a> Objective<'a> {
         }
         let mut objective =
             Self::new(model, crop, camera, crate::camera::distance(start), landmarks, landmark_vertices, settings)?;
-        objective.target.antialias = settings.antialias;
+        if settings.antialias {
+            let triangles = objective.target.triangles;
+            objective.target.adjacency = Some(antialias::Adjacency::new(triangles, model.face_inner_edges()));
+        }
         let x = objective.layout.flatten(start);
         if settings.skin_mask {
             let points = objective.forward(&x)?.points;

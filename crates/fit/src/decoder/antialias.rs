@@ -20,7 +20,7 @@
 //! buffer); [`forward`] and [`vjp`] are the blend as a function of the edge's two projected
 //! vertices and the two colours.
 
-use facerecon_model::morphable::{InnerEdge, VertexTriangles};
+use facerecon_model::morphable::InnerEdge;
 use facerecon_raster::VisibilityBuffer;
 use glam::DVec3;
 
@@ -39,6 +39,35 @@ pub struct Crossing {
     pub step: [i8; 2],
     /// The edge's two vertices.
     pub edge: [u32; 2],
+}
+
+/// Per triangle, the triangle across each of its edges (across edge `k`: the edge opposite
+/// corner `k`); none on the mesh's border and on edges shared by more than two triangles.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Adjacency {
+    across: Vec<[u32; 3]>,
+}
+
+impl Adjacency {
+    /// From the mesh's inner edges (e.g. `MorphableModel::face_inner_edges`, or
+    /// `VertexTriangles::inner_edges`).
+    pub fn new(triangles: &[[u32; 3]], edges: &[InnerEdge]) -> Self {
+        let mut across = vec![[u32::MAX; 3]; triangles.len()];
+        for e in edges {
+            for (t, u) in [(e.triangles[0], e.triangles[1]), (e.triangles[1], e.triangles[0])] {
+                let Some(tri) = triangles.get(t as usize) else { continue };
+                if let Some(k) = tri.iter().position(|v| !e.vertices.contains(v)) {
+                    across[t as usize][k] = u;
+                }
+            }
+        }
+        Adjacency { across }
+    }
+
+    /// The triangle across the edge of `t` opposite its corner `k`.
+    fn across(&self, t: usize, k: usize) -> Option<usize> {
+        self.across.get(t).map(|a| a[k]).filter(|&u| u != u32::MAX).map(|u| u as usize)
+    }
 }
 
 /// Which of the two pixels a blend changes.
@@ -133,19 +162,18 @@ pub fn vjp(
 /// other pixel is background) is walked from towards the other pixel; the pair is kept when
 /// the walk meets a silhouette edge (module docs) within [`FIND_SLACK`] of the segment and
 /// `keep(front pixel)` holds. `pixels` are the vertices' projections (the buffer's pixel
-/// centres at integers), `around` the triangles around each vertex and `edges` the mesh's
-/// inner edges (e.g. `MorphableModel::face_inner_edges`), which say where outlines can be.
+/// centres at integers); `adjacency` says which triangles meet at each edge, and so where
+/// outlines can be.
 pub fn find(
     vb: &VisibilityBuffer,
     triangles: &[[u32; 3]],
-    around: &VertexTriangles,
-    edges: &[InnerEdge],
+    adjacency: &Adjacency,
     pixels: &[[f64; 2]],
     mut keep: impl FnMut(usize) -> bool,
 ) -> Vec<Crossing> {
     let (w, h) = (vb.width as usize, vb.height as usize);
     let tri_at = |i: usize| vb.covered(i).then(|| vb.triangle[i] as usize).filter(|t| *t < triangles.len());
-    let near = near_outline(triangles, edges, pixels, w, h);
+    let near = near_outline(triangles, adjacency, pixels, w, h);
     let mut out = Vec::new();
     for y in 0..h {
         for x in 0..w {
@@ -180,7 +208,7 @@ pub fn find(
                     continue;
                 }
                 let centre = [(front % w) as f64, (front / w) as f64];
-                if let Some(edge) = exit_edge(triangles, around, pixels, t, centre, step) {
+                if let Some(edge) = exit_edge(triangles, adjacency, pixels, t, centre, step) {
                     out.push(Crossing { front, back, step, edge });
                 }
             }
@@ -193,7 +221,7 @@ pub fn find(
 /// whose two triangles face opposite ways in the image (their projected areas have opposite
 /// signs). Only pairs near these are walked: a face has a few hundred such edges among tens
 /// of thousands.
-fn near_outline(triangles: &[[u32; 3]], edges: &[InnerEdge], pixels: &[[f64; 2]], w: usize, h: usize) -> Vec<bool> {
+fn near_outline(triangles: &[[u32; 3]], adjacency: &Adjacency, pixels: &[[f64; 2]], w: usize, h: usize) -> Vec<bool> {
     let mut near = vec![false; w * h];
     let px = |v: u32| pixels.get(v as usize).copied().filter(|p| p[0].is_finite() && p[1].is_finite());
     // Twice each triangle's signed area in the image (NaN when a corner did not project).
@@ -205,12 +233,18 @@ fn near_outline(triangles: &[[u32; 3]], edges: &[InnerEdge], pixels: &[[f64; 2]]
         })
         .collect();
     let facing = |t: u32| facing.get(t as usize).copied().filter(|f| !f.is_nan());
-    for e in edges {
-        let (Some(s0), Some(s1)) = (facing(e.triangles[0]), facing(e.triangles[1])) else { continue };
+    let edges = triangles.iter().enumerate().flat_map(|(t, tri)| {
+        (0..3).filter_map(move |k| {
+            let u = adjacency.across(t, k).filter(|&u| u > t)?;
+            Some(([tri[(k + 1) % 3], tri[(k + 2) % 3]], [t as u32, u as u32]))
+        })
+    });
+    for (vertices, pair) in edges {
+        let (Some(s0), Some(s1)) = (facing(pair[0]), facing(pair[1])) else { continue };
         if s0 * s1 >= 0.0 {
             continue;
         }
-        let (Some(a), Some(b)) = (px(e.vertices[0]), px(e.vertices[1])) else { continue };
+        let (Some(a), Some(b)) = (px(vertices[0]), px(vertices[1])) else { continue };
         let clampx = |v: f64| v.clamp(0.0, (w as f64 - 1.0).max(0.0)) as usize;
         let clampy = |v: f64| v.clamp(0.0, (h as f64 - 1.0).max(0.0)) as usize;
         let (x0, x1) = (clampx(a[0].min(b[0]).floor() - 2.0), clampx(a[0].max(b[0]).ceil() + 2.0));
@@ -233,7 +267,7 @@ const MAX_WALK: usize = 8;
 /// more than [`MAX_WALK`] triangles.
 fn exit_edge(
     triangles: &[[u32; 3]],
-    around: &VertexTriangles,
+    adjacency: &Adjacency,
     pixels: &[[f64; 2]],
     t: usize,
     centre: [f64; 2],
@@ -266,18 +300,16 @@ fn exit_edge(
             return None;
         }
         let (i, j, opposite) = (corners[(k + 1) % 3], corners[(k + 2) % 3], corners[k]);
-        // The other triangle on edge i–j: exactly one (a manifold edge, not the border).
-        let mut others =
-            around.of(i as usize).iter().filter(|&&u| u as usize != t && around.of(j as usize).contains(&u)).copied();
-        let (Some(u), None) = (others.next(), others.next()) else { return None };
-        let o = *triangles.get(u as usize)?.iter().find(|&&v| v != i && v != j)?;
+        // The other triangle on edge i–j (none on the border).
+        let u = adjacency.across(t, k)?;
+        let o = *triangles.get(u)?.iter().find(|&&v| v != i && v != j)?;
         let (a, b) = (px(i)?, px(j)?);
         // A silhouette: the other triangle folds back over this one (its third vertex on the
         // same side of the edge); it must also lie across the segment, not along it.
         if side(a, b, px(o)?) * side(a, b, px(opposite)?) > 0.0 {
             return fraction(centre, step, a, b).map(|_| [i, j]);
         }
-        (t, entry) = (u as usize, Some([i, j]));
+        (t, entry) = (u, Some([i, j]));
     }
     None
 }

@@ -422,6 +422,7 @@ fn antialiased_coverage_matches_the_outline_area() {
     let size = 48u32;
     let camera = CropCamera { k: 900.0, c: [23.5, 23.5], size };
     let around = facerecon_model::morphable::VertexTriangles::new(p.len(), &tris);
+    let adjacency = antialias::Adjacency::new(&tris, &around.inner_edges(&tris));
     let (mut worst_sampled, mut worst_aa) = (0.0f64, 0.0f64);
     for shift in 0..6 {
         let offset = DVec3::new(0.37 * shift as f64, -0.23 * shift as f64, -450.0);
@@ -440,7 +441,7 @@ fn antialiased_coverage_matches_the_outline_area() {
         let pixels = project::forward(&camera, &y);
         let mut image: Vec<f64> = (0..vb.triangle.len()).map(|i| if vb.covered(i) { 1.0 } else { 0.0 }).collect();
         let sampled: f64 = image.iter().sum();
-        let crossings = antialias::find(&vb, &tris, &around, &around.inner_edges(&tris), &pixels, |_| true);
+        let crossings = antialias::find(&vb, &tris, &adjacency, &pixels, |_| true);
         assert!(!crossings.is_empty());
         let colour = |i: usize| DVec3::splat(image[i]);
         let deltas: Vec<(usize, f64)> = crossings
@@ -514,6 +515,7 @@ fn antialias_finds_folds_not_borders() {
         }
     }
     let around = facerecon_model::morphable::VertexTriangles::new(9, &tris);
+    let adjacency = antialias::Adjacency::new(&tris, &around.inner_edges(&tris));
     let crossings = |y: &[DVec3]| {
         let yf: Vec<[f32; 3]> = y.iter().map(|v| v.as_vec3().to_array()).collect();
         let job = facerecon_raster::RenderJob {
@@ -526,7 +528,7 @@ fn antialias_finds_folds_not_borders() {
             height: size,
         };
         let vb = facerecon_raster::cpu::rasterize(&job).unwrap();
-        antialias::find(&vb, &tris, &around, &around.inner_edges(&tris), &project::forward(&camera, y), |_| true)
+        antialias::find(&vb, &tris, &adjacency, &project::forward(&camera, y), |_| true)
     };
     assert!(crossings(&sheet(0.0)).is_empty());
     // A gentle roof (the middle column 6 mm nearer): every face still turns towards the
