@@ -9,7 +9,7 @@
 //!
 //!     cargo run --release -p facerecon-eval --example synth_geometry -- [--per-bucket N] [--seed S] \
 //!         [--buckets 0,1,2,3] [--sigma S] [--lambda-id L] [--lambda-exp L] [--coarse [--iterations N] [--pyramid A,B]] \
-//!         [--full [--smooth λ] [--lr mm]] [--optimiser adam|lm] [--ph-lambda-id λ] [--ph-lambda-exp λ] \
+//!         [--full [--smooth λ] [--lr mm]] [--optimiser adam|lm] [--ph-lambda-id λ] [--ph-lambda-exp λ] [--ph-lambda-lms λ] \
 //!         [--encoder WEIGHTS] [--occlude] [--no-skin-mask] [--map-skin-mask] [--skin-sigmas K] \
 //!         [--no-antialias] [--max-image-side PX] [--truth-start]
 //!
@@ -156,6 +156,7 @@ fn main() {
             }
             "--ph-lambda-id" => photometric.lambda_id = v.parse().expect("number"),
             "--ph-lambda-exp" => photometric.lambda_exp = v.parse().expect("number"),
+            "--ph-lambda-lms" => photometric.lambda_lms = v.parse().expect("number"),
             "--smooth" => displacement.lambda_smooth = v.parse().expect("number"),
             "--lr" => displacement.learning_rate = v.parse().expect("number"),
             "--encoder" => encoder = Some(v),
