@@ -11,7 +11,12 @@
 //!         [--buckets 0,1,2,3] [--sigma S] [--lambda-id L] [--lambda-exp L] [--coarse [--iterations N] [--pyramid A,B]] \
 //!         [--full [--smooth λ] [--lr mm]] [--optimiser adam|lm] [--ph-lambda-id λ] [--ph-lambda-exp λ] [--ph-lambda-lms λ] \
 //!         [--encoder WEIGHTS] [--occlude] [--no-skin-mask] [--map-skin-mask] [--skin-sigmas K] \
-//!         [--no-antialias] [--max-image-side PX] [--truth-start]
+//!         [--no-antialias] [--max-image-side PX] [--truth-start] [--fixed-jaw] [--same-faces]
+//!
+//! The "exact" 2D landmarks are the truth's, with the jaw points 1–7 and 11–17 moved onto
+//! the true shape's visible outline, where annotators, dlib and the fit place them
+//! (decision 0705); `--fixed-jaw` keeps synth's fixed landmark vertices instead, which on
+//! a turned face lie inside the outline.
 //!
 //! `--coarse` adds the photometric fit started from the exact landmarks' landmark fit
 //! (`--iterations` on the crop, `--pyramid A,B` on its 8× and 4× shrunk copies first);
@@ -22,6 +27,9 @@
 //! silhouette blends off.
 //! `--max-image-side PX` caps the drawn photo size (default 1024): small photos around a face
 //! give it strong perspective, large ones weak.
+//! `--same-faces` draws the same faces (identity, expression, albedo, light, pose) in every
+//! bucket, only their size and photo differing, so the buckets compare resolution alone;
+//! by default each bucket draws its own faces.
 //! `--truth-start` adds the coarse fit started from the ground truth's own coefficients:
 //! where the fit's objective settles near the answer (a floor no start can beat).
 //! `--encoder W` adds the learned encoder (ONNX Runtime, weights file W) on the same crop
@@ -96,6 +104,13 @@ fn main() {
     let mut buckets: Vec<u8> = vec![0, 1, 2, 3];
     let mut coarse = false;
     let mut truth_start = false;
+    // The truth's jaw points on the visible outline (the convention of annotators and of
+    // the fit); `--fixed-jaw` keeps synth's fixed landmark vertices (the protocol before
+    // decision 0705).
+    let mut outline_jaw = true;
+    // The same faces (identity, expression, albedo, light, pose) in every bucket, only their
+    // size and photo differing: the buckets then compare resolution alone.
+    let mut same_faces = false;
     let mut max_image_side = SynthConfig::default().max_image_side;
     let mut full = false;
     let mut iterations: Option<usize> = None;
@@ -124,6 +139,14 @@ fn main() {
         }
         if a == "--map-skin-mask" {
             displacement.skin_mask = true;
+            continue;
+        }
+        if a == "--same-faces" {
+            same_faces = true;
+            continue;
+        }
+        if a == "--fixed-jaw" {
+            outline_jaw = false;
             continue;
         }
         if a == "--no-antialias" {
@@ -194,7 +217,8 @@ fn main() {
         let rows: Vec<Row> = (0..per_bucket)
             .into_par_iter()
             .map(|i| {
-                let mut s = generator.sample(seed * 100 + bucket as u64, i).expect("sample");
+                let stream = if same_faces { seed * 100 } else { seed * 100 + bucket as u64 };
+                let mut s = generator.sample(stream, i).expect("sample");
                 let clean = s.image.clone();
                 if occlude {
                     // An occluder over the face's landmark box (the ground truth stays the face's).
@@ -210,7 +234,10 @@ fn main() {
                 neutral.identity.iter_mut().for_each(|x| *x = 0.0);
                 neutral.expression.iter_mut().for_each(|x| *x = 0.0);
                 let mut row = Row { mean_face: vec![both(&neutral)], ..Default::default() };
-                let exact: Vec<[f32; 2]> = s.truth.landmarks.iter().map(|l| l.xy).collect();
+                let mut exact: Vec<[f32; 2]> = s.truth.landmarks.iter().map(|l| l.xy).collect();
+                if outline_jaw {
+                    outline_convention(&model, c, s.image.dimensions(), &mut exact);
+                }
                 let refine = match (coarse, full) {
                     (_, true) => Refine::Full,
                     (true, false) => Refine::Coarse,
@@ -428,4 +455,47 @@ fn map_under_occluder(
         sums[k].1 += 1;
     }
     (sums[0].1 > 0 && sums[1].1 > 0).then(|| sums.map(|(s, n)| s / n as f64))
+}
+
+/// Moves the truth's jaw points 1–7 and 11–17 onto the face's visible outline, as
+/// annotators place them and as the fit reads them: `synth` projects the model's fixed
+/// landmark vertices, which on a turned face lie inside the outline. The outline point is
+/// found by a scan of every face-area vertex of the true shape in a 3 mm band at the
+/// landmark's height, between the midline and the landmark, not more than 15 mm behind it
+/// (the fit's rule, `facerecon_fit::contour`, which picks among at most 24 candidates of the
+/// mean face): the one lying furthest out in the image along the head's left–right axis.
+fn outline_convention(model: &MorphableModel, c: &Coefficients, (w, h): (u32, u32), landmarks: &mut [[f32; 2]]) {
+    let Ok(shape) = model.shape(&c.identity, &c.expression, Extent::Face) else { return };
+    let r = facerecon_model::scene::Pose::from_coefficients(c).matrix();
+    let rotation = glam::DMat3::from_cols(r.x_axis.as_dvec3(), r.y_axis.as_dvec3(), r.z_axis.as_dvec3());
+    let t = glam::Vec3::from(c.translation).as_dvec3();
+    let camera = facerecon_fit::camera::CropCamera {
+        k: 0.5 * h as f64 * facerecon_model::scene::Camera::default().focal() as f64,
+        c: [0.5 * w as f64 - 0.5, 0.5 * h as f64 - 0.5],
+        size: h,
+    };
+    // Image direction of the head's +x axis (image y down).
+    let ex = rotation * glam::DVec3::X;
+    let lm = model.landmarks();
+    for &j in &facerecon_fit::contour::MOVING {
+        let Some(p) = shape.get(lm[j] as usize).copied() else { continue };
+        let side = p[0].signum();
+        let best = shape
+            .iter()
+            .filter(|q| {
+                (q[1] - p[1]).abs() < 3.0
+                    && side * q[0] > 0.2 * p[0].abs()
+                    && side * q[0] <= p[0].abs()
+                    && q[2] >= p[2] - 15.0
+            })
+            .chain(std::iter::once(&p))
+            .filter_map(|q| camera.project(rotation * glam::Vec3::from(*q).as_dvec3() + t))
+            .max_by(|a, b| {
+                let s = |x: &[f64; 2]| side as f64 * (ex.x * x[0] - ex.y * x[1]);
+                s(a).total_cmp(&s(b))
+            });
+        if let Some(q) = best {
+            landmarks[j] = [q[0] as f32, q[1] as f32];
+        }
+    }
 }
