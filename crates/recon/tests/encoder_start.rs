@@ -1,6 +1,7 @@
 //! The pipeline with the learned encoder as the start (an untrained tiny network: this checks
 //! the plumbing, not accuracy): one batch per photo, answers in face order, too-small faces
-//! skipped, the photometric fit refining from the encoder's answer, and start/refine
+//! skipped, the photometric fit refining from the encoder's appearance on the landmark fit's
+//! geometry, and start/refine
 //! combinations that make no sense refused.
 
 use std::sync::Arc;
@@ -61,6 +62,21 @@ fn the_encoder_starts_each_face_and_coarse_refines_from_it() {
     );
     assert!(ph.loss_end < 0.5 * ph.loss_start, "{ph:?}");
     assert_ne!(fit.coefficients, direct[0]);
+
+    // Refined, the start is the encoder's appearance on the landmark fit's geometry: with no
+    // iterations the coarse fit hands back exactly that.
+    let mut p = p;
+    p.photometric.iterations = 0;
+    p.photometric.pyramid = [0, 0];
+    let r = p.reconstruct(&bytes, &refined).unwrap();
+    let fit = r.faces[1].fit.as_ref().unwrap();
+    let l = &fit.landmark_fit.coefficients;
+    assert_eq!(fit.coefficients.identity, l.identity);
+    assert_eq!(fit.coefficients.expression, l.expression);
+    assert_eq!((fit.coefficients.rotation, fit.coefficients.translation), (l.rotation, l.translation));
+    assert_eq!(fit.coefficients.albedo, direct[0].albedo);
+    assert_eq!(fit.coefficients.light, direct[0].light);
+    assert_ne!(fit.coefficients.identity, direct[0].identity);
 }
 
 #[test]
