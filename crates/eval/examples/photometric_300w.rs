@@ -16,7 +16,7 @@
 //!
 //!     cargo run --release -p facerecon-eval --example photometric_300w -- \
 //!         [--subset afw/ …] [--limit N] [--full [--smooth λ] [--magnitude λ] [--lr mm] [--iterations N]] \
-//!         [--encoder WEIGHTS] [--range λrange] [--lambda-lms λ] [--no-skin-mask] [--map-skin-mask] [--skin-sigmas K]
+//!         [--encoder WEIGHTS] [--range λrange] [--lambda-lms λ] [--lambda-id λ] [--no-skin-mask] [--map-skin-mask] [--skin-sigmas K]
 
 use facerecon_eval::photometric::{Rgb, psnr, ssim};
 use facerecon_recon::{FaceSource, Options, Pipeline, Refine, Start, outputs};
@@ -31,6 +31,7 @@ fn main() {
     let mut encoder: Option<String> = None;
     let mut lambda_range: Option<f64> = None;
     let mut lambda_lms: Option<f64> = None;
+    let mut lambda_id: Option<f64> = None;
     let mut skin_mask = true;
     let mut skin_sigmas: Option<f64> = None;
     let mut settings = facerecon_fit::displacement::DisplacementSettings::default();
@@ -59,6 +60,7 @@ fn main() {
             "--encoder" => encoder = Some(v.clone()),
             "--range" => lambda_range = Some(num()),
             "--lambda-lms" => lambda_lms = Some(num()),
+            "--lambda-id" => lambda_id = Some(num()),
             "--skin-sigmas" => skin_sigmas = Some(num()),
             "--iterations" => settings.iterations = v.parse().expect("number"),
             _ => panic!("unknown argument {a}"),
@@ -79,6 +81,9 @@ fn main() {
     }
     if let Some(l) = lambda_lms {
         pipeline.photometric.lambda_lms = l;
+    }
+    if let Some(l) = lambda_id {
+        pipeline.photometric.lambda_id = l;
     }
     if let Some(w) = &encoder {
         // One thread per session: the photos already run in parallel.

@@ -12,7 +12,8 @@
 //! ([`facerecon_nn::Encoder`], one batch per photo). Refinement levels: [`Refine::None`]
 //! (the encoder's answer as it is), [`Refine::Landmarks`] (the landmark fit, milliseconds),
 //! [`Refine::Coarse`] (the photometric fit on the face's crop from the start, about a
-//! second; an encoder start gives it the colours, the landmark fit the geometry) and [`Refine::Full`] (then a displacement map on the coarse surface, seconds).
+//! second; an encoder start gives it the colours, the landmark fit the geometry) and
+//! [`Refine::Full`] (then a displacement map on the coarse surface, seconds).
 
 pub mod outputs;
 pub mod texture;
@@ -416,7 +417,7 @@ impl Pipeline {
                 if matches!(refine, Refine::Coarse | Refine::Full) {
                     // Refined, the encoder gives the appearance and the landmark fit the
                     // geometry: from the encoder's own shape and pose the coarse fit ends
-                    // 0.15–0.28 mm further from the truth (decision 0902).
+                    // 0.18–0.28 mm further from the truth (decision 0902).
                     let l = &landmark_fit.coefficients;
                     c.identity.clone_from(&l.identity);
                     c.expression.clone_from(&l.expression);

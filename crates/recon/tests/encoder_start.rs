@@ -1,8 +1,7 @@
 //! The pipeline with the learned encoder as the start (an untrained tiny network: this checks
 //! the plumbing, not accuracy): one batch per photo, answers in face order, too-small faces
 //! skipped, the photometric fit refining from the encoder's appearance on the landmark fit's
-//! geometry, and start/refine
-//! combinations that make no sense refused.
+//! geometry, and start/refine combinations that make no sense refused.
 
 use std::sync::Arc;
 
