@@ -412,6 +412,21 @@ fn antialias_vjp() {
     }
 }
 
+/// The visibility buffer of camera-space points `y` (about 450 mm away) seen by `camera`.
+fn rasterize_in(camera: &CropCamera, y: &[DVec3], tris: &[[u32; 3]]) -> facerecon_raster::VisibilityBuffer {
+    let yf: Vec<[f32; 3]> = y.iter().map(|v| v.as_vec3().to_array()).collect();
+    let job = facerecon_raster::RenderJob {
+        positions: &yf,
+        triangles: tris,
+        colors: &yf,
+        normals: &yf,
+        camera: camera.scene_camera(450.0),
+        width: camera.size,
+        height: camera.size,
+    };
+    facerecon_raster::cpu::rasterize(&job).unwrap()
+}
+
 /// A convex solid's antialiased coverage against the area of its outline, an independent
 /// figure: the convex hull of its projected vertices (shoelace formula). Point sampling
 /// is off by the pixels whose centres the outline happens to pass; the blend recovers the
@@ -427,17 +442,7 @@ fn antialiased_coverage_matches_the_outline_area() {
     for shift in 0..6 {
         let offset = DVec3::new(0.37 * shift as f64, -0.23 * shift as f64, -450.0);
         let y: Vec<DVec3> = p.iter().map(|v| glam::Vec3::from(*v).as_dvec3() * 7.5 + offset).collect();
-        let yf: Vec<[f32; 3]> = y.iter().map(|v| v.as_vec3().to_array()).collect();
-        let job = facerecon_raster::RenderJob {
-            positions: &yf,
-            triangles: &tris,
-            colors: &yf,
-            normals: &yf,
-            camera: camera.scene_camera(450.0),
-            width: size,
-            height: size,
-        };
-        let vb = facerecon_raster::cpu::rasterize(&job).unwrap();
+        let vb = rasterize_in(&camera, &y, &tris);
         let pixels = project::forward(&camera, &y);
         let mut image: Vec<f64> = (0..vb.triangle.len()).map(|i| if vb.covered(i) { 1.0 } else { 0.0 }).collect();
         let sampled: f64 = image.iter().sum();
@@ -517,17 +522,7 @@ fn antialias_finds_folds_not_borders() {
     let around = facerecon_model::morphable::VertexTriangles::new(9, &tris);
     let adjacency = antialias::Adjacency::new(&tris, &around.inner_edges(&tris));
     let crossings = |y: &[DVec3]| {
-        let yf: Vec<[f32; 3]> = y.iter().map(|v| v.as_vec3().to_array()).collect();
-        let job = facerecon_raster::RenderJob {
-            positions: &yf,
-            triangles: &tris,
-            colors: &yf,
-            normals: &yf,
-            camera: camera.scene_camera(450.0),
-            width: size,
-            height: size,
-        };
-        let vb = facerecon_raster::cpu::rasterize(&job).unwrap();
+        let vb = rasterize_in(&camera, y, &tris);
         antialias::find(&vb, &tris, &adjacency, &project::forward(&camera, y), |_| true)
     };
     assert!(crossings(&sheet(0.0)).is_empty());
