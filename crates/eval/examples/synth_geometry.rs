@@ -11,7 +11,7 @@
 //!         [--buckets 0,1,2,3] [--sigma S] [--lambda-id L] [--lambda-exp L] [--coarse [--iterations N] [--pyramid A,B]] \
 //!         [--full [--smooth λ] [--lr mm]] [--optimiser adam|lm] [--ph-lambda-id λ] [--ph-lambda-exp λ] [--ph-lambda-lms λ] \
 //!         [--encoder WEIGHTS] [--occlude] [--no-skin-mask] [--map-skin-mask] [--skin-sigmas K] \
-//!         [--no-antialias] [--max-image-side PX] [--truth-start] [--fixed-jaw] [--same-faces]
+//!         [--no-antialias] [--max-image-side PX] [--truth-start] [--fixed-jaw] [--drawn-sizes] [--same-faces]
 //!
 //! The "exact" 2D landmarks are the truth's, with the jaw points 1–7 and 11–17 moved onto
 //! the true shape's visible outline, where annotators, dlib and the fit place them
@@ -27,9 +27,13 @@
 //! silhouette blends off.
 //! `--max-image-side PX` caps the drawn photo size (default 1024): small photos around a face
 //! give it strong perspective, large ones weak.
-//! `--same-faces` draws the same faces (identity, expression, albedo, light, pose) in every
-//! bucket, only their size and photo differing, so the buckets compare resolution alone;
-//! by default each bucket draws its own faces.
+//! Buckets (decision 0706): by default every face is drawn once, at bucket 0 (crop side
+//! 231–388 px), and for buckets 1 / 2 / 3 its whole photo is shrunk (bicubic, about its
+//! centre, so the camera stays the drawn one) until the crop is 176 / 96 / 48 px: the same
+//! faces, poses and cameras in every bucket, resolution alone differing (DESIGN §3 and §8,
+//! the thesis' way). `--drawn-sizes` draws each bucket's own faces at sizes in its range, in
+//! photos of their own (the protocol before 0706); `--same-faces` does so with the same
+//! faces in every bucket (only size and photo drawn per bucket).
 //! `--truth-start` adds the coarse fit started from the ground truth's own coefficients:
 //! where the fit's objective settles near the answer (a floor no start can beat).
 //! `--encoder W` adds the learned encoder (ONNX Runtime, weights file W) on the same crop
@@ -108,8 +112,12 @@ fn main() {
     // the fit); `--fixed-jaw` keeps synth's fixed landmark vertices (the protocol before
     // decision 0705).
     let mut outline_jaw = true;
-    // The same faces (identity, expression, albedo, light, pose) in every bucket, only their
-    // size and photo differing: the buckets then compare resolution alone.
+    // Each bucket draws its own faces at sizes in its own range, in photos of their own
+    // (`--drawn-sizes`, the protocol before decision 0706); by default every face is drawn once
+    // at bucket 0 and its photo shrunk for the others.
+    let mut drawn_sizes = false;
+    // With `--drawn-sizes`: the same faces (identity, expression, albedo, light, pose) in every
+    // bucket, their size and photo drawn per bucket.
     let mut same_faces = false;
     let mut max_image_side = SynthConfig::default().max_image_side;
     let mut full = false;
@@ -142,7 +150,11 @@ fn main() {
             continue;
         }
         if a == "--same-faces" {
-            same_faces = true;
+            (drawn_sizes, same_faces) = (true, true);
+            continue;
+        }
+        if a == "--drawn-sizes" {
+            drawn_sizes = true;
             continue;
         }
         if a == "--fixed-jaw" {
@@ -209,17 +221,33 @@ fn main() {
         "synthetic geometry error, {per_bucket} faces per bucket, seed {seed}, yaw ≤ 60°, ICP {ICP_ITERATIONS} iterations; {settings:?}"
     );
     println!(
+        "{}",
+        match (drawn_sizes, same_faces) {
+            (false, _) => format!(
+                "the same faces in every bucket, drawn at bucket 0; buckets 1 / 2 / 3: their photos shrunk to {:.0} / {:.0} / {:.0} px crops",
+                SHRUNK_CROP_SIDE[1], SHRUNK_CROP_SIDE[2], SHRUNK_CROP_SIDE[3]
+            ),
+            (true, true) => "the same faces in every bucket, each drawn at a size and in a photo of its bucket".into(),
+            (true, false) => "each bucket's own faces, drawn at sizes and in photos of their bucket".into(),
+        }
+    );
+    println!(
         "bucket | faces | found | detected landmarks' inner-49 NME vs truth, mean (median) | mean face p2plane (p2point) | fit from exact landmarks | mean face, found faces | fit from the photo (detect + landmarks)"
     );
+    // The coarse fit's mean point-to-plane error in the first bucket listed: the others are
+    // given against it too (the "within 10 %").
+    let mut coarse_reference: Option<f64> = None;
     for &bucket in &buckets {
-        let config = SynthConfig { buckets: vec![bucket], yaw_max_deg: 60.0, max_image_side, ..SynthConfig::default() };
+        let drawn_bucket = if drawn_sizes { bucket } else { 0 };
+        let config =
+            SynthConfig { buckets: vec![drawn_bucket], yaw_max_deg: 60.0, max_image_side, ..SynthConfig::default() };
         let generator = Generator::new(&model, config).expect("generator");
         let rows: Vec<Row> = (0..per_bucket)
             .into_par_iter()
             .map(|i| {
-                let stream = if same_faces { seed * 100 } else { seed * 100 + bucket as u64 };
+                let stream = if same_faces || !drawn_sizes { seed * 100 } else { seed * 100 + bucket as u64 };
                 let mut s = generator.sample(stream, i).expect("sample");
-                let clean = s.image.clone();
+                let mut clean = s.image.clone();
                 if occlude {
                     // An occluder over the face's landmark box (the ground truth stays the face's).
                     let b = FaceBox::of_points(s.truth.landmarks.iter().map(|l| l.xy)).expect("box");
@@ -237,6 +265,13 @@ fn main() {
                 let mut exact: Vec<[f32; 2]> = s.truth.landmarks.iter().map(|l| l.xy).collect();
                 if outline_jaw {
                     outline_convention(&model, c, s.image.dimensions(), &mut exact);
+                }
+                if !drawn_sizes && bucket > 0 {
+                    let target = SHRUNK_CROP_SIDE[bucket as usize];
+                    let (t, w, h) = shrink(s.image.dimensions(), &exact, target);
+                    s.image = facerecon_vision::crop::resample_rect(&s.image, &t, w, h);
+                    clean = facerecon_vision::crop::resample_rect(&clean, &t, w, h);
+                    exact.iter_mut().for_each(|p| *p = t.to_crop(*p));
                 }
                 let refine = match (coarse, full) {
                     (_, true) => Refine::Full,
@@ -354,8 +389,15 @@ fn main() {
             let info: Vec<[f64; 3]> = rows.iter().flat_map(|r| r.coarse_info.iter().copied()).collect();
             let [seconds, first, last] = means(&info);
             let albedo: Vec<f64> = rows.iter().flat_map(|r| r.coarse_albedo.iter().copied()).collect();
+            let mean = ErrorStats::of(all(|r| &r.coarse).iter().map(|x| x[0]).collect()).map(|e| e.mean);
+            let against = match (mean, *coarse_reference.get_or_insert(mean.unwrap_or(f64::NAN))) {
+                (Some(m), r) if r.is_finite() => {
+                    format!(" [{m:.4} mm, {:+.1} % against bucket {}]", 100.0 * (m / r - 1.0), buckets[0])
+                }
+                _ => String::new(),
+            };
             println!(
-                "  bucket {bucket}: coarse fit from the exact landmarks' fit: {} — albedo error {:.4} — {:.2} s per face, loss {:.2} → {:.2} (means of {} faces)",
+                "  bucket {bucket}: coarse fit from the exact landmarks' fit: {}{against} — albedo error {:.4} — {:.2} s per face, loss {:.2} → {:.2} (means of {} faces)",
                 fmt(all(|r| &r.coarse)),
                 albedo.iter().sum::<f64>() / albedo.len().max(1) as f64,
                 seconds,
@@ -409,6 +451,33 @@ fn main() {
         "(each cell: mean / median over faces of the per-face mean distance; {:.0} s)",
         start.elapsed().as_secs_f64()
     );
+}
+
+/// The crop side (source pixels) each bucket's photos are shrunk to under the default
+/// protocol (DESIGN §8: buckets at 224 / 176 / 96 / 48 px). Bucket 0 keeps the photo as
+/// drawn (crop side 231–388 px; the crop is resampled to 224 either way).
+const SHRUNK_CROP_SIDE: [f32; 4] = [224.0, 176.0, 96.0, 48.0];
+
+/// The thesis' low-resolution face (DESIGN §3, decision 0706) for a whole photo of size
+/// `(w, h)`: one uniform scale about the photo's centre that makes the crop square of
+/// `landmarks` `target` pixels wide. Returns the image → shrunk-photo transform and the
+/// shrunk size. The height is rounded to whole pixels and the scale taken from it, so the
+/// shrunk photo's own camera (fov 30° over its height, on-axis) is the drawn camera
+/// exactly; the width is rounded about the same centre (at most half a pixel of photo more
+/// or less at the sides).
+fn shrink(
+    (w, h): (u32, u32),
+    landmarks: &[[f32; 2]],
+    target: f32,
+) -> (facerecon_vision::crop::CropTransform, u32, u32) {
+    let side = FaceBox::of_points(landmarks.iter().copied())
+        .map(|b| facerecon_vision::crop::crop_square(&b).2)
+        .unwrap_or(target);
+    let h2 = (h as f32 * target / side).round().max(1.0);
+    let scale = h2 / h as f32;
+    let w2 = (w as f32 * scale).round().max(1.0);
+    let offset = [0.5 * w2 - 0.5 - scale * (0.5 * w as f32 - 0.5), 0.5 * h2 - 0.5 - scale * (0.5 * h as f32 - 0.5)];
+    (facerecon_vision::crop::CropTransform { scale, offset }, w2 as u32, h2 as u32)
 }
 
 /// The displacement map's mean |offset| (mm) over the fitted face's visible narrow-face

@@ -172,15 +172,22 @@ fn taps(out: u32, scale: f32, offset: f32, len: i64) -> (i64, Vec<f32>) {
 
 /// Samples the `size`×`size` crop given by `t` from `image` (black outside).
 pub fn resample(image: &RgbImage, t: &CropTransform, size: u32) -> RgbImage {
+    resample_rect(image, t, size, size)
+}
+
+/// Samples a `width`×`height` image whose pixel `q` shows `image` at `t.to_image(q)`
+/// (black outside): [`resample`] for any output shape, e.g. a whole photo shrunk by one
+/// uniform scale. Catmull-Rom, its kernel widened by `1 / t.scale` when shrinking.
+pub fn resample_rect(image: &RgbImage, t: &CropTransform, width: u32, height: u32) -> RgbImage {
     let (w, h) = (image.width() as i64, image.height() as i64);
-    let xtaps: Vec<_> = (0..size).map(|u| taps(u, t.scale, t.offset[0], w)).collect();
-    let ytaps: Vec<_> = (0..size).map(|v| taps(v, t.scale, t.offset[1], h)).collect();
+    let xtaps: Vec<_> = (0..width).map(|u| taps(u, t.scale, t.offset[0], w)).collect();
+    let ytaps: Vec<_> = (0..height).map(|v| taps(v, t.scale, t.offset[1], h)).collect();
     // Source rows the vertical pass reads, clamped to the image.
     let used = ytaps.iter().filter(|(_, k)| !k.is_empty());
     let row_lo = used.clone().map(|(f, _)| *f).min().unwrap_or(0).clamp(0, h);
     let row_hi = used.map(|(f, k)| f + k.len() as i64).max().unwrap_or(0).clamp(row_lo, h);
-    // Horizontal pass: rows row_lo..row_hi, `size` columns, f32 RGB.
-    let n = size as usize;
+    // Horizontal pass: rows row_lo..row_hi, `width` columns, f32 RGB.
+    let n = width as usize;
     let mut mid = vec![0f32; (row_hi - row_lo) as usize * n * 3];
     let raw = image.as_raw();
     for (ri, y) in (row_lo..row_hi).enumerate() {
@@ -197,7 +204,7 @@ pub fn resample(image: &RgbImage, t: &CropTransform, size: u32) -> RgbImage {
             mid[(ri * n + u) * 3..(ri * n + u) * 3 + 3].copy_from_slice(&acc);
         }
     }
-    let mut out = RgbImage::new(size, size);
+    let mut out = RgbImage::new(width, height);
     for (v, (first, k)) in ytaps.iter().enumerate() {
         for u in 0..n {
             let mut acc = [0f32; 3];
@@ -368,6 +375,27 @@ mod tests {
         assert!(c.image.get_pixel(112, 112).0[0] <= 9);
         let empty = RgbImage::new(0, 0);
         assert_eq!(crop_face(&empty, &face(0.0, 0.0, 300.0, 300.0)).image.get_pixel(5, 5).0, [0; 3]);
+    }
+
+    #[test]
+    fn resample_rect_shrinks_a_photo_by_one_scale() {
+        // R = x, G = y: Catmull-Rom reproduces a linear function, so away from the borders
+        // each output pixel holds the analytic value at its source point.
+        let img = RgbImage::from_fn(200, 120, |x, y| Rgb([x as u8, y as u8, 0]));
+        let scale = 0.37;
+        let t = CropTransform { scale, offset: [37.0 - 0.5 - scale * 99.5, 22.0 - 0.5 - scale * 59.5] };
+        let out = resample_rect(&img, &t, 74, 44);
+        assert_eq!(out.dimensions(), (74, 44));
+        for v in 4..40 {
+            for u in 4..70 {
+                let [x, y] = t.to_image([u as f32, v as f32]);
+                let p = out.get_pixel(u, v).0;
+                assert!((f32::from(p[0]) - x).abs() <= 0.51 && (f32::from(p[1]) - y).abs() <= 0.51, "{u} {v}: {p:?}");
+            }
+        }
+        // The square case is `resample`.
+        let square = CropTransform::from_square(20.0, 10.0, 90.0, 30);
+        assert_eq!(resample_rect(&img, &square, 30, 30), resample(&img, &square, 30));
     }
 
     #[test]
