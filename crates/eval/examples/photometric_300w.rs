@@ -1,7 +1,8 @@
 //! Photometric quality of the fit on faces-300w: per photo, the annotated face is
 //! reconstructed from its annotated 68 points at each refinement level, its reconstruction
 //! (fitted albedo × SH shading) rendered into the face's 224² crop, and compared with the
-//! photo's crop inside the model's narrow face region: PSNR and SSIM (DESIGN §8).
+//! photo's crop inside the model's narrow face region: PSNR, SSIM and D_RGB (DESIGN §8; D_RGB
+//! the mean Euclidean RGB distance, 0–√3, `facerecon_eval::photometric::d_rgb`).
 //! The landmark level has the mean albedo under uniform light: its figure is the baseline
 //! the photometric fit improves on. With `--full`, the full level too: the coarse and full
 //! figures then come from one run (the full level is the coarse fit plus its map).
@@ -18,7 +19,7 @@
 //!         [--subset afw/ …] [--limit N] [--full [--smooth λ] [--magnitude λ] [--lr mm] [--iterations N]] \
 //!         [--encoder WEIGHTS] [--range λrange] [--lambda-lms λ] [--lambda-id λ] [--no-skin-mask] [--map-skin-mask] [--skin-sigmas K]
 
-use facerecon_eval::photometric::{Rgb, psnr, ssim};
+use facerecon_eval::photometric::{Rgb, d_rgb, psnr, ssim};
 use facerecon_recon::{FaceSource, Options, Pipeline, Refine, Start, outputs};
 use facerecon_vision::pipeline::FrontEnd;
 use rayon::prelude::*;
@@ -103,20 +104,20 @@ fn main() {
     let slot = |run: usize| if run < 2 { run } else { run + 1 };
     let start = std::time::Instant::now();
     // Per photo: per slot [PSNR, SSIM, NME68, seconds, PSNR and SSIM in the fit's own
-    // mask]; displacement summary.
-    let results: Vec<([[f64; 6]; 5], [f64; 3], f64)> = rows
+    // mask, D_RGB]; displacement summary.
+    let results: Vec<([[f64; 7]; 5], [f64; 3], f64)> = rows
         .par_iter()
         .filter_map(|rel| {
             let img = photos.join(rel);
             let bytes = std::fs::read(&img).ok()?;
             let pts = facerecon_vision::pts::read(&std::fs::read(img.with_extension("pts")).ok()?).ok()?;
-            let mut out = [[f64::NAN; 6]; 5];
+            let mut out = [[f64::NAN; 7]; 5];
             let mut extra = [f64::NAN; 3];
             let mut extra_range = f64::NAN;
             let score = |r: &facerecon_recon::Reconstruction,
                          face: &facerecon_recon::FaceRecon,
                          fit: &facerecon_recon::FaceFit|
-             -> Option<[f64; 5]> {
+             -> Option<[f64; 6]> {
                 let cr = facerecon_vision::crop::crop_face(&r.image, &face.face.landmark_box);
                 let photo = &cr.image;
                 let (frame, mask) = outputs::render_reconstruction(&model, fit).ok()?;
@@ -150,7 +151,7 @@ fn main() {
                     Some(m) => (psnr(&ra, &rb, m).unwrap_or(f64::NAN), ssim(&ra, &rb, m).unwrap_or(f64::NAN)),
                     None => (f64::NAN, f64::NAN),
                 };
-                Some([psnr(&ra, &rb, &mask)?, ssim(&ra, &rb, &mask)?, nme, po, so])
+                Some([psnr(&ra, &rb, &mask)?, ssim(&ra, &rb, &mask)?, nme, po, so, d_rgb(&ra, &rb, &mask)?])
             };
             for (k, &(start, refine)) in runs.iter().enumerate() {
                 let o =
@@ -167,12 +168,12 @@ fn main() {
                 if refine == Refine::Full {
                     // The coarse level is the same fit without its map.
                     let coarse = facerecon_recon::FaceFit { displacement: None, ..fit.clone() };
-                    let [p, q, n, po, so] = score(&r, face, &coarse)?;
-                    out[1] = [p, q, n, f64::NAN, po, so];
+                    let [p, q, n, po, so, d] = score(&r, face, &coarse)?;
+                    out[1] = [p, q, n, f64::NAN, po, so, d];
                 }
-                let [p, q, n, po, so] = score(&r, face, fit)?;
+                let [p, q, n, po, so, d] = score(&r, face, fit)?;
                 // The full level has its own slot (2); its coarse figure went to slot 1 above.
-                out[if refine == Refine::Full { 2 } else { slot(k) }] = [p, q, n, seconds, po, so];
+                out[if refine == Refine::Full { 2 } else { slot(k) }] = [p, q, n, seconds, po, so, d];
                 if slot(k) == 1 {
                     // How much of the fitted albedo lies outside [0, 1] (what λrange acts on).
                     let a = model.albedo(&fit.coefficients.albedo, facerecon_model::Extent::Face).ok()?;
@@ -205,13 +206,14 @@ fn main() {
             let time = if t.is_nan() { String::new() } else { format!(", {t:.2} s per face") };
             let (po, pom) = stat(k, 4);
             let (so, som) = stat(k, 5);
+            let (d, dm) = stat(k, 6);
             let own = if po.is_nan() {
                 String::new()
             } else {
                 format!("; in the fit's own mask PSNR {po:.2} dB (median {pom:.2}), SSIM {so:.3} (median {som:.3})")
             };
             println!(
-                "  {:16}: PSNR {p:.2} dB (median {pm:.2}), SSIM {s:.3} (median {sm:.3}), NME68 {:.2} % (median {:.2} %){time}{own}",
+                "  {:16}: PSNR {p:.2} dB (median {pm:.2}), SSIM {s:.3} (median {sm:.3}), D_RGB {d:.4} (median {dm:.4}), NME68 {:.2} % (median {:.2} %){time}{own}",
                 names[k],
                 100.0 * n,
                 100.0 * nm

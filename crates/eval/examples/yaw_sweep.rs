@@ -13,9 +13,14 @@
 //!   the mean face drifts little in absolute terms;
 //! * D_JS: the Jensen–Shannon divergence (bits, 0–1) between the distribution of each
 //!   identity coefficient over the faces at this yaw and at yaw 0 (histograms of 12 bins on
-//!   [−3, 3], add-one smoothed), averaged over the coefficients. Our reading of Eq. 4.4,
-//!   which DESIGN names but does not write out. With few faces it has a floor: the same
-//!   measure between two halves of the faces at yaw 0 is printed beside it.
+//!   [−3, 3], add-one smoothed), averaged over the coefficients
+//!   ([`facerecon_eval::consistency::d_js`], our reading of Eq. 4.4). With few faces it has a
+//!   floor: the same measure between two halves of the faces at yaw 0 is printed beside it.
+//!
+//! Per method, over the whole sweep: D_con, each face's sweep taken as a video of a head
+//! turning ([`facerecon_eval::consistency::d_con`], our reading of Eq. 4.5: the mean distance,
+//! σ units, of each yaw's identity answer from the face's mean answer over the sweep),
+//! averaged over the faces answered at every yaw.
 //!
 //! ```text
 //! cargo run --release -p facerecon-eval --example yaw_sweep -- [--faces N] [--seed S] \
@@ -31,8 +36,6 @@ use facerecon_vision::pipeline::FrontEnd;
 use glam::DVec3;
 use rayon::prelude::*;
 
-const BINS: usize = 12;
-
 /// One method's answer for one face: its coefficients and their geometry error (mm).
 type Answer = Option<(Coefficients, f64)>;
 
@@ -46,33 +49,13 @@ fn geometry_error(model: &MorphableModel, pred: &Coefficients, truth: &(Vec<DVec
     shape_error::error(model, &truth_shape(model, pred), truth, Metric::PointToPlane)
 }
 
-/// Add-one-smoothed histogram of `values` over [−3, 3].
-fn histogram(values: impl Iterator<Item = f32>) -> Vec<f64> {
-    let mut h = [1.0; BINS];
-    for v in values {
-        let b = (((v.clamp(-3.0, 3.0) + 3.0) / 6.0) * BINS as f32) as usize;
-        h[b.min(BINS - 1)] += 1.0;
-    }
-    let total: f64 = h.iter().sum();
-    h.iter().map(|x| x / total).collect()
-}
-
-/// Jensen–Shannon divergence in bits.
-fn js(p: &[f64], q: &[f64]) -> f64 {
-    let kl = |a: &[f64], m: &[f64]| {
-        a.iter().zip(m).map(|(x, y)| if *x > 0.0 { x * (x / y).log2() } else { 0.0 }).sum::<f64>()
-    };
-    let m: Vec<f64> = p.iter().zip(q).map(|(a, b)| 0.5 * (a + b)).collect();
-    0.5 * kl(p, &m) + 0.5 * kl(q, &m)
-}
-
-/// Mean over identity coefficients of the JS divergence between two sets of answers.
+/// D_JS between two sets of answers, over their identity coefficients
+/// ([`facerecon_eval::consistency::d_js`]); NaN when it is undefined.
 fn d_js(a: &[&Coefficients], b: &[&Coefficients]) -> f64 {
-    let k = a.first().map_or(0, |c| c.identity.len());
-    let per: Vec<f64> = (0..k)
-        .map(|i| js(&histogram(a.iter().map(|c| c.identity[i])), &histogram(b.iter().map(|c| c.identity[i]))))
-        .collect();
-    per.iter().sum::<f64>() / k.max(1) as f64
+    fn ids<'a>(s: &[&'a Coefficients]) -> Vec<&'a [f32]> {
+        s.iter().map(|c| c.identity.as_slice()).collect()
+    }
+    facerecon_eval::consistency::d_js(&ids(a), &ids(b)).unwrap_or(f64::NAN)
 }
 
 fn main() {
@@ -192,5 +175,17 @@ fn main() {
                 d_js(&coeffs, &base_coeffs)
             );
         }
+        let d_con: Vec<f64> = (0..faces as usize)
+            .filter_map(|f| {
+                let frames: Option<Vec<&[f32]>> =
+                    answers.iter().map(|y| y[f][m].as_ref().map(|(c, _)| c.identity.as_slice())).collect();
+                facerecon_eval::consistency::d_con(&frames?)
+            })
+            .collect();
+        println!(
+            "{name} | D_con over the sweep: {:.3} σ (mean of {} faces)",
+            d_con.iter().sum::<f64>() / d_con.len().max(1) as f64,
+            d_con.len()
+        );
     }
 }

@@ -1,6 +1,7 @@
-//! Photometric quality inside a mask (DESIGN §8, thesis Eq. 6.6–6.9): MSE and PSNR over RGB
-//! in [0, 1], and SSIM with an 11 × 11 Gaussian window (σ 1.5, K1 0.01, K2 0.03) computed
-//! per channel over the whole image and averaged over the mask's pixels and the channels.
+//! Photometric quality inside a mask (DESIGN §8, thesis Eq. 6.6–6.11): MSE and PSNR over RGB
+//! in [0, 1], SSIM with an 11 × 11 Gaussian window (σ 1.5, K1 0.01, K2 0.03) computed
+//! per channel over the whole image and averaged over the mask's pixels and the channels,
+//! and D_RGB, the mean colour distance.
 
 /// An RGB image as `[0, 1]` floats, row-major.
 pub struct Rgb<'a> {
@@ -28,6 +29,22 @@ pub fn mse(a: &Rgb, b: &Rgb, mask: &[bool]) -> Option<f64> {
 /// `10·log10(1 / MSE)` dB (peak 1); infinite for identical images.
 pub fn psnr(a: &Rgb, b: &Rgb, mask: &[bool]) -> Option<f64> {
     mse(a, b, mask).map(|m| 10.0 * (1.0 / m).log10())
+}
+
+/// D_RGB (Eq. 6.10–6.11, our reading: DESIGN names it without writing it out): the mean over
+/// the masked pixels of the Euclidean distance between the two RGB colours, in [0, √3]
+/// for colours in [0, 1]. Unlike MSE it weighs a pixel by its whole colour difference, not
+/// per channel squared.
+pub fn d_rgb(a: &Rgb, b: &Rgb, mask: &[bool]) -> Option<f64> {
+    check(a, b, mask)?;
+    let (mut sum, mut n) = (0.0, 0usize);
+    for ((p, q), &m) in a.pixels.iter().zip(b.pixels).zip(mask) {
+        if m {
+            sum += (0..3).map(|c| ((p[c] - q[c]) as f64).powi(2)).sum::<f64>().sqrt();
+            n += 1;
+        }
+    }
+    (n > 0).then(|| sum / n as f64)
 }
 
 /// Mean SSIM over the masked pixels and the channels.
@@ -93,6 +110,20 @@ mod tests {
 
     fn img(w: usize, h: usize, f: impl Fn(usize, usize) -> [f32; 3]) -> Vec<[f32; 3]> {
         (0..w * h).map(|i| f(i % w, i / w)).collect()
+    }
+
+    #[test]
+    fn d_rgb_by_hand() {
+        // Three pixels: equal; (0.3, 0.4, 0) apart (distance 0.5); (1, 1, 1) apart (√3, masked
+        // out in the second call).
+        let a = [[0.2f32, 0.2, 0.2], [0.0, 0.0, 0.5], [0.0, 0.0, 0.0]];
+        let b = [[0.2f32, 0.2, 0.2], [0.3, 0.4, 0.5], [1.0, 1.0, 1.0]];
+        let (ra, rb) = (Rgb { width: 3, height: 1, pixels: &a }, Rgb { width: 3, height: 1, pixels: &b });
+        let all = d_rgb(&ra, &rb, &[true; 3]).unwrap();
+        assert!((all - (0.5 + 3f64.sqrt()) / 3.0).abs() < 1e-6, "{all}");
+        assert!((d_rgb(&ra, &rb, &[true, true, false]).unwrap() - 0.25).abs() < 1e-6);
+        assert_eq!(d_rgb(&ra, &rb, &[false; 3]), None);
+        assert_eq!(d_rgb(&ra, &rb, &[true; 2]), None);
     }
 
     #[test]
