@@ -19,7 +19,8 @@
 //! region meets its own outline (a turned cheek, the side of the nose), the colours are
 //! blended across the silhouette edges ([`crate::decoder::antialias`],
 //! [`PhotometricSettings::antialias`]), so the term moves the outline too. No background
-//! likelihood and no silhouette (IoU) term yet: both need a mask of the face in the photo.
+//! likelihood and no silhouette (IoU) term: both need a mask of where the face ends in the
+//! photo, which only a face-parsing model gives (decision 0707).
 //! Every run has an iteration cap, a time budget and a stopping rule (less than 0.1 % of
 //! the loss gained over 20 iterations).
 
