@@ -34,7 +34,7 @@ use crate::grid::Grid;
 /// The schedule of a registration.
 #[derive(Clone, Debug, PartialEq)]
 pub struct NonRigidSettings {
-    /// Stiffness values `α`, stiff first (in units of the data term's point distances).
+    /// Stiffness values `α`, stiff first: each edge weighs `α²` against a pair's 1.
     pub stiffness: Vec<f64>,
     /// Correspondence updates (and solves) per stiffness.
     pub iterations: usize,
@@ -78,7 +78,7 @@ pub struct NonRigid {
 /// `landmarks`: source vertices whose place on the target is known (on a face, the 68
 /// landmark vertices), which keep the source from sliding along the target where the
 /// surface alone does not say where it goes. `None` when either is empty, an index is out
-/// of range, or a point is not finite.
+/// of range, a point is not finite, or a setting is negative or not finite.
 pub fn register(
     source: &[DVec3],
     triangles: &[[u32; 3]],
@@ -91,6 +91,10 @@ pub fn register(
         || target.is_empty()
         || source.iter().chain(target).chain(landmarks.iter().map(|(_, p)| p)).any(|p| !p.is_finite())
         || triangles.iter().flatten().chain(landmarks.iter().map(|(v, _)| v)).any(|&v| v as usize >= n)
+        || [settings.gamma, settings.reject, settings.landmark_weight, settings.back_weight]
+            .iter()
+            .chain(&settings.stiffness)
+            .any(|v| !(v.is_finite() && *v >= 0.0))
     {
         return None;
     }
@@ -348,6 +352,8 @@ mod tests {
         let mut nan = source.clone();
         nan[2].x = f64::NAN;
         assert!(register(&nan, &tris, &source, &[], &s).is_none());
+        let bad = NonRigidSettings { stiffness: vec![10.0, f64::NAN], ..Default::default() };
+        assert!(register(&source, &tris, &source, &[], &bad).is_none());
         // A source equal to its target stays where it is.
         let r = register(&source, &tris, &source, &[], &s).unwrap();
         assert!(r.mean_distance < 1e-9, "{}", r.mean_distance);
