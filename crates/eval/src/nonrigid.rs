@@ -112,7 +112,6 @@ pub fn register(
         degree[b as usize] += 1.0;
     }
     let grid = Grid::new(target, cell_for(target));
-    let row = |p: DVec3| nalgebra::Vector4::new(p.x, p.y, p.z, 1.0);
     // Start: every transform the similarity that best maps the landmarks (the identity
     // without three of them).
     let lm_source: Vec<DVec3> = landmarks.iter().map(|(v, _)| source[*v as usize]).collect();
@@ -144,7 +143,7 @@ pub fn register(
             .iter()
             .zip(x)
             .map(|(p, t)| {
-                let r = row(*p).transpose() * t;
+                let r = homogeneous(*p).transpose() * t;
                 DVec3::new(r[0], r[1], r[2])
             })
             .collect()
@@ -158,17 +157,19 @@ pub fn register(
             // part of the target.
             let near_source = Grid::new(&deformed, cell_for(&deformed));
             let back = settings.back_weight * n as f64 / target.len() as f64;
-            let mut pairs: Vec<(usize, DVec3, f64, f64)> = deformed
+            let pair =
+                |vertex: usize, point: DVec3, weight: f64, d2: f64| Pair { vertex, point, weight, distance: d2.sqrt() };
+            let mut pairs: Vec<Pair> = deformed
                 .iter()
                 .enumerate()
-                .filter_map(|(i, p)| grid.nearest(*p).map(|(j, d2)| (i, target[j], 1.0, d2.sqrt())))
+                .filter_map(|(i, p)| grid.nearest(*p).map(|(j, d2)| pair(i, target[j], 1.0, d2)))
                 .collect();
-            pairs.extend(target.iter().filter_map(|t| near_source.nearest(*t).map(|(i, d2)| (i, *t, back, d2.sqrt()))));
-            let mut d: Vec<f64> = pairs.iter().map(|p| p.3).collect();
+            pairs.extend(target.iter().filter_map(|t| near_source.nearest(*t).map(|(i, d2)| pair(i, *t, back, d2))));
+            let mut d: Vec<f64> = pairs.iter().map(|p| p.distance).collect();
             d.sort_by(f64::total_cmp);
             let cutoff = settings.reject * d.get(d.len() / 2).copied().unwrap_or(0.0).max(1e-12);
-            pairs.retain(|p| p.3 <= cutoff);
-            pairs.extend(landmarks.iter().map(|&(v, p)| (v as usize, p, settings.landmark_weight, 0.0)));
+            pairs.retain(|p| p.distance <= cutoff);
+            pairs.extend(landmarks.iter().map(|&(v, p)| pair(v as usize, p, settings.landmark_weight, 0.0)));
             solve(source, &edges, &degree, &pairs, alpha, settings, &mut x);
         }
     }
@@ -177,26 +178,39 @@ pub fn register(
     Some(NonRigid { mean_distance: dist.iter().sum::<f64>() / dist.len().max(1) as f64, deformed })
 }
 
-/// One solve of the normal equations (module docs) for the stiffness `alpha` and the pairs
-/// `(source vertex, target point, weight, distance)`, from `x` (warm start) into `x`.
+/// A source vertex paired with the target point it is pulled to.
+struct Pair {
+    vertex: usize,
+    point: DVec3,
+    weight: f64,
+    /// At pairing, before the solve (landmarks: 0).
+    distance: f64,
+}
+
+/// `[x y z 1]`: what a vertex's 4 × 3 transform acts on.
+fn homogeneous(p: DVec3) -> nalgebra::Vector4<f64> {
+    nalgebra::Vector4::new(p.x, p.y, p.z, 1.0)
+}
+
+/// One solve of the normal equations (module docs) for the stiffness `alpha` and the
+/// `pairs`, from `x` (warm start) into `x`.
 fn solve(
     source: &[DVec3],
     edges: &[(u32, u32)],
     degree: &[f64],
-    pairs: &[(usize, DVec3, f64, f64)],
+    pairs: &[Pair],
     alpha: f64,
     settings: &NonRigidSettings,
     x: &mut [Matrix4x3<f64>],
 ) {
     let n = source.len();
-    let row = |p: DVec3| nalgebra::Vector4::new(p.x, p.y, p.z, 1.0);
     let g2 = Matrix4::from_diagonal(&nalgebra::Vector4::new(1.0, 1.0, 1.0, settings.gamma * settings.gamma));
     // Right-hand side and block diagonal of the normal equations.
     let a2 = alpha * alpha;
     let mut rhs: Vec<Matrix4x3<f64>> = vec![Matrix4x3::zeros(); n];
     let mut data: Vec<Matrix4<f64>> = vec![Matrix4::zeros(); n];
-    for &(i, u, w, _) in pairs {
-        let v = row(source[i]);
+    for &Pair { vertex: i, point: u, weight: w, .. } in pairs {
+        let v = homogeneous(source[i]);
         rhs[i] += v * nalgebra::RowVector3::new(u.x, u.y, u.z) * w;
         data[i] += v * v.transpose() * w;
     }
