@@ -7,7 +7,7 @@ use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use facerecon_nn::Compute;
+use facerecon_nn::{Compute, InferencePrecision};
 
 /// Everything the server is configured with.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -28,6 +28,9 @@ pub struct Config {
     /// Where the encoder runs: `cpu` (ONNX Runtime, the default) or `gpu` (burn's Vulkan
     /// backend; servers built with `--features gpu`, decision 0901).
     pub encoder_device: Compute,
+    /// What the CPU encoder computes in: `fp32` (the default) or `int8` (needs the
+    /// calibration file beside the weights, `<weights>.int8.json`; decision 0903).
+    pub encoder_precision: InferencePrecision,
     /// What draws the pictures (overlay, side-by-side): `auto` (the default: the wgpu
     /// renderer on a thread of its own when a Vulkan device that is not a CPU
     /// implementation is there, else the CPU rasteriser, the faster on lavapipe), `cpu`, or
@@ -142,6 +145,7 @@ impl Default for Config {
             landmark_model: PathBuf::from(facerecon_vision::landmarks::DEFAULT_MODEL_PATH),
             encoder: EncoderChoice::Released,
             encoder_device: Compute::Cpu,
+            encoder_precision: InferencePrecision::Fp32,
             renderer: RendererChoice::Auto,
             max_batch_size: 16,
             max_queue_delay_ms: 0,
@@ -176,6 +180,11 @@ impl Config {
         anyhow::ensure!(
             self.tls_cert.is_some() == self.tls_key.is_some(),
             "tls_cert and tls_key go together: set both or neither"
+        );
+        anyhow::ensure!(
+            self.encoder_precision == InferencePrecision::Fp32 || self.encoder_device == Compute::Cpu,
+            "encoder_precision = {} runs on the CPU (ONNX Runtime); the GPU encoder is fp32",
+            self.encoder_precision
         );
         anyhow::ensure!(
             self.encoder_device != Compute::Gpu || Compute::GPU_BUILT,
@@ -218,6 +227,10 @@ pub struct Args {
     /// [default: cpu].
     #[arg(long, env = "FACERECON_ENCODER_DEVICE")]
     pub encoder_device: Option<Compute>,
+    /// What the CPU encoder computes in: fp32, or int8 with the calibration beside the
+    /// weights [default: fp32].
+    #[arg(long, env = "FACERECON_ENCODER_PRECISION")]
+    pub encoder_precision: Option<InferencePrecision>,
     /// What draws the pictures: auto (wgpu on a real GPU, else the CPU rasteriser), cpu or
     /// gpu [default: auto].
     #[arg(long, env = "FACERECON_RENDERER", value_enum)]
@@ -277,7 +290,16 @@ impl Args {
         macro_rules! set_some {
             ($($f:ident),*) => { $( if let Some(v) = self.$f { c.$f = Some(v); } )* };
         }
-        set!(listen, landmark_model, encoder, encoder_device, max_batch_size, max_queue_delay_ms, queue_capacity);
+        set!(
+            listen,
+            landmark_model,
+            encoder,
+            encoder_device,
+            encoder_precision,
+            max_batch_size,
+            max_queue_delay_ms,
+            queue_capacity
+        );
         set!(cpu_threads, renderer);
         set!(max_message_bytes, max_image_pixels, max_faces, shutdown_grace_s, log_format);
         set_some!(model, tls_cert, tls_key, auth_token, otlp_endpoint);
@@ -362,6 +384,14 @@ mod tests {
         let args = Args::try_parse_from(["facerecon-server", "--encoder-device", "gpu"]).unwrap();
         assert_eq!(args.encoder_device, Some(Compute::Gpu));
         assert!(Args::try_parse_from(["facerecon-server", "--encoder-device", "tpu"]).is_err());
+        // int8 on the CPU only.
+        let args = Args::try_parse_from(["facerecon-server", "--encoder-precision", "int8"]).unwrap();
+        let c = args.resolve().unwrap();
+        assert_eq!(c.encoder_precision, InferencePrecision::Int8);
+        c.validate().unwrap();
+        let c = Config { encoder_device: Compute::Gpu, ..c };
+        assert!(format!("{:#}", c.validate().unwrap_err()).contains("CPU"));
+        assert!(Args::try_parse_from(["facerecon-server", "--encoder-precision", "int4"]).is_err());
         // OTLP: a URL with a scheme and a host.
         for bad in ["collector:4317", "grpc://collector:4317", "http://", "not a url"] {
             let c = Config { otlp_endpoint: Some(bad.into()), ..Config::default() };

@@ -57,8 +57,16 @@ pub fn default_loader(config: &Config) -> Loader {
         // ONNX Runtime's own threads for one batch; batches run one at a time.
         let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
         let load = |w: &std::path::Path| {
-            facerecon_nn::encoder::load(w, config.encoder_device, threads)
-                .with_context(|| format!("loading the encoder {} ({})", w.display(), config.encoder_device))
+            facerecon_nn::encoder::load(w, config.encoder_device, config.encoder_precision, threads).with_context(
+                || {
+                    format!(
+                        "loading the encoder {} ({}, {})",
+                        w.display(),
+                        config.encoder_device,
+                        config.encoder_precision
+                    )
+                },
+            )
         };
         match &config.encoder {
             EncoderChoice::None => {}

@@ -43,6 +43,10 @@ pub struct FitArgs {
     /// build with `--features gpu`).
     #[arg(long, default_value = "cpu")]
     encoder_device: facerecon_nn::Compute,
+    /// What the CPU encoder computes in: `fp32`, or `int8` (needs `<weights>.int8.json`
+    /// beside the weights, from `facerecon-calibrate`).
+    #[arg(long, default_value = "fp32")]
+    encoder_precision: facerecon_nn::InferencePrecision,
     /// One JSON object per photo on stdout (one per line).
     #[arg(long)]
     json: bool,
@@ -95,7 +99,7 @@ pub fn run(args: FitArgs) -> anyhow::Result<ExitCode> {
     if let Some(w) = &args.encoder {
         let released = facerecon_nn::released::path();
         let w = if w.as_os_str() == "released" { &released } else { w };
-        let encoder = facerecon_nn::encoder::load(w, args.encoder_device, 2)
+        let encoder = facerecon_nn::encoder::load(w, args.encoder_device, args.encoder_precision, 2)
             .with_context(|| format!("loading the encoder {} ({})", w.display(), args.encoder_device))?;
         pipeline.set_encoder(encoder)?;
     }

@@ -17,7 +17,7 @@
 //!
 //!     cargo run --release -p facerecon-eval --example photometric_300w -- \
 //!         [--subset afw/ …] [--limit N] [--full [--smooth λ] [--magnitude λ] [--lr mm] [--iterations N]] \
-//!         [--encoder WEIGHTS] [--range λrange] [--lambda-lms λ] [--lambda-id λ] [--no-skin-mask] [--map-skin-mask] [--skin-sigmas K]
+//!         [--encoder WEIGHTS [--encoder-precision fp32|int8]] [--range λrange] [--lambda-lms λ] [--lambda-id λ] [--no-skin-mask] [--map-skin-mask] [--skin-sigmas K]
 
 use facerecon_eval::photometric::{Rgb, d_rgb, psnr, ssim};
 use facerecon_recon::{FaceSource, Options, Pipeline, Refine, Start, outputs};
@@ -30,6 +30,7 @@ fn main() {
     let mut limit = usize::MAX;
     let mut full = false;
     let mut encoder: Option<String> = None;
+    let mut precision = facerecon_nn::InferencePrecision::Fp32;
     let mut lambda_range: Option<f64> = None;
     let mut lambda_lms: Option<f64> = None;
     let mut lambda_id: Option<f64> = None;
@@ -59,6 +60,7 @@ fn main() {
             "--magnitude" => settings.lambda_magnitude = num(),
             "--lr" => settings.learning_rate = num(),
             "--encoder" => encoder = Some(v.clone()),
+            "--encoder-precision" => precision = v.parse().expect("fp32 or int8"),
             "--range" => lambda_range = Some(num()),
             "--lambda-lms" => lambda_lms = Some(num()),
             "--lambda-id" => lambda_id = Some(num()),
@@ -89,7 +91,7 @@ fn main() {
     if let Some(w) = &encoder {
         // One thread per session: the photos already run in parallel.
         let runtime = facerecon_vision::onnx::OnnxRuntimeConfig { intra_op_threads: 1, ..Default::default() };
-        let e = facerecon_nn::OrtEncoder::load(w.as_ref(), &runtime).expect("encoder weights");
+        let e = facerecon_nn::OrtEncoder::load_with(w.as_ref(), &runtime, precision).expect("encoder weights");
         pipeline.set_encoder(std::sync::Arc::new(e)).expect("encoder matches the model");
     }
     // The runs per photo: (start, refine); `Full` also scores the coarse level (slot 1).

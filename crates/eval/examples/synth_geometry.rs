@@ -10,7 +10,7 @@
 //!     cargo run --release -p facerecon-eval --example synth_geometry -- [--per-bucket N] [--seed S] \
 //!         [--buckets 0,1,2,3] [--sigma S] [--lambda-id L] [--lambda-exp L] [--coarse [--iterations N] [--pyramid A,B]] \
 //!         [--full [--smooth λ] [--lr mm]] [--optimiser adam|lm] [--ph-lambda-id λ] [--ph-lambda-exp λ] [--ph-lambda-lms λ] \
-//!         [--encoder WEIGHTS] [--occlude] [--no-skin-mask] [--map-skin-mask] [--skin-sigmas K] \
+//!         [--encoder WEIGHTS [--encoder-precision fp32|int8]] [--occlude] [--no-skin-mask] [--map-skin-mask] [--skin-sigmas K] \
 //!         [--no-antialias] [--max-image-side PX] [--truth-start] [--fixed-jaw] [--drawn-sizes] [--same-faces]
 //!
 //! The "exact" 2D landmarks are the truth's, with the jaw points 1–7 and 11–17 moved onto
@@ -37,7 +37,8 @@
 //! `--truth-start` adds the coarse fit started from the ground truth's own coefficients:
 //! where the fit's objective settles near the answer (a floor no start can beat).
 //! `--encoder W` adds the learned encoder (ONNX Runtime, weights file W) on the same crop
-//! (from the exact landmarks): alone, and refined by the coarse fit, with seconds per face.
+//! (from the exact landmarks): alone, and refined by the coarse fit, with seconds per face;
+//! `--encoder-precision int8` runs it in int8 (decision 0903; `facerecon-calibrate W` first).
 
 use facerecon_eval::align::Metric;
 use facerecon_eval::geometry::ErrorStats;
@@ -125,6 +126,7 @@ fn main() {
     let mut displacement = facerecon_fit::displacement::DisplacementSettings::default();
     let mut photometric = facerecon_fit::photometric::PhotometricSettings::default();
     let mut encoder: Option<String> = None;
+    let mut precision = facerecon_nn::InferencePrecision::Fp32;
     let mut occlude = false;
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
@@ -195,6 +197,7 @@ fn main() {
             "--smooth" => displacement.lambda_smooth = v.parse().expect("number"),
             "--lr" => displacement.learning_rate = v.parse().expect("number"),
             "--encoder" => encoder = Some(v),
+            "--encoder-precision" => precision = v.parse().expect("fp32 or int8"),
             "--skin-sigmas" => photometric.skin_sigmas = v.parse().expect("number"),
             "--max-image-side" => max_image_side = v.parse().expect("pixels"),
             "--buckets" => buckets = v.split(',').map(|b| b.parse().expect("bucket 0-3")).collect(),
@@ -213,7 +216,7 @@ fn main() {
     if let Some(w) = &encoder {
         // One thread per session: the faces already run in parallel.
         let runtime = facerecon_vision::onnx::OnnxRuntimeConfig { intra_op_threads: 1, ..Default::default() };
-        let e = facerecon_nn::OrtEncoder::load(w.as_ref(), &runtime).expect("encoder weights");
+        let e = facerecon_nn::OrtEncoder::load_with(w.as_ref(), &runtime, precision).expect("encoder weights");
         pipeline.set_encoder(std::sync::Arc::new(e)).expect("encoder matches the model");
     }
     let start = std::time::Instant::now();

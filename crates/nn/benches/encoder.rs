@@ -1,6 +1,7 @@
 //! Encoder speed per face: the full network (DESIGN §7) exported to ONNX and run by ONNX
-//! Runtime on the CPU (the production CPU path), against the burn network itself on burn's
-//! Flex CPU backend measured in the same run. Batch 1 and 8; 1 and 2 intra-op threads.
+//! Runtime on the CPU (the production CPU path), fp32 and int8 (decision 0903), against the
+//! burn network itself on burn's Flex CPU backend measured in the same run. Batch 1 and 8;
+//! 1 and 2 intra-op threads. The int8 graph is calibrated on the benchmark's own crops.
 //!
 //! `cargo bench -p facerecon-nn --bench encoder [-- RUNS]` (needs `scripts/install-onnxruntime`).
 //! Medians of RUNS (default 21) after warm-up. Speed does not depend on the weights' values.
@@ -41,7 +42,6 @@ fn main() {
     let net = EncoderNet::new(&config, &device);
     let onnx = facerecon_nn::onnx::export(&net, &config).unwrap();
     println!("encoder: {} outputs, ONNX graph {:.1} MB", config.output_size(), onnx.len() as f64 / 1e6);
-    let burn = BurnEncoder::new(config.clone(), net, device);
     let batch = |n: usize| {
         let mut b = CropBatch::new(config.input_size);
         for k in 0..n {
@@ -53,22 +53,31 @@ fn main() {
     println!("| path | threads | batch | ms/batch (median) | ms/face | faces/s |");
     println!("|---|---|---|---|---|---|");
     let mut ort_ms = [0.0; 2];
+    let ranges = facerecon_nn::quantize::calibrate(&net, &config, [&batch(8)], &OnnxRuntimeConfig::default())
+        .expect("calibration")
+        .into_iter()
+        .collect();
     for threads in [1usize, 2] {
         let runtime = OnnxRuntimeConfig { intra_op_threads: threads, ..OnnxRuntimeConfig::default() };
-        let ort = OrtEncoder::from_onnx(config.clone(), &onnx, &runtime).expect("ONNX Runtime");
+        let fp32 = OrtEncoder::from_onnx(config.clone(), &onnx, &runtime).expect("ONNX Runtime");
+        let int8 = OrtEncoder::int8(config.clone(), &net, &ranges, &runtime).expect("ONNX Runtime, int8");
         for (i, n) in [1usize, 8].into_iter().enumerate() {
-            let ms = time(&ort, &batch(n), runs);
+            let ms = time(&fp32, &batch(n), runs);
+            let ms8 = time(&int8, &batch(n), runs);
             if threads == 2 {
                 ort_ms[i] = ms / n as f64;
             }
-            println!(
-                "| {} | {threads} | {n} | {ms:.1} | {:.1} | {:.1} |",
-                ort.describe(),
-                ms / n as f64,
-                1e3 * n as f64 / ms
-            );
+            for (e, ms, note) in [(&fp32, ms, String::new()), (&int8, ms8, format!(" {:.2}× fp32", ms / ms8))] {
+                println!(
+                    "| {} | {threads} | {n} | {ms:.1} | {:.1} | {:.1} |{note}",
+                    e.describe(),
+                    ms / n as f64,
+                    1e3 * n as f64 / ms
+                );
+            }
         }
     }
+    let burn = BurnEncoder::new(config.clone(), net, device);
     // burn Flex uses rayon's pool (RAYON_NUM_THREADS, default: every core).
     let threads = rayon::current_num_threads();
     for (i, n) in [1usize, 8].into_iter().enumerate() {

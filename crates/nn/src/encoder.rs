@@ -17,6 +17,7 @@ use ort::session::Session;
 
 use crate::config::{BUCKETS, NetworkConfig};
 use crate::network::EncoderNet;
+use crate::quantize::{Calibration, InferencePrecision};
 use crate::{Compute, NnError};
 
 /// Most crops in one batch (bounds the input tensor: 4096 × 3 × 224² floats ≈ 2.5 GB).
@@ -176,15 +177,25 @@ impl Encoder for BurnEncoder {
 }
 
 /// Loads a weights file as an encoder on `compute`: ONNX Runtime with `cpu_threads`
-/// intra-op threads on the CPU (the production CPU path), or the burn network on the GPU.
+/// intra-op threads on the CPU (the production CPU path; `precision` int8 reads the
+/// calibration beside the weights, [`crate::quantize::Calibration`]), or the burn network on
+/// the GPU (fp32 only).
 /// The GPU path runs one crop through the network before returning, so a machine without a
 /// usable GPU fails here with an error rather than on the first request (burn reports a
 /// missing adapter by panicking), and the first caller does not pay the kernels' compilation.
-pub fn load(path: &Path, compute: Compute, cpu_threads: usize) -> Result<Arc<dyn Encoder>, NnError> {
+pub fn load(
+    path: &Path,
+    compute: Compute,
+    precision: InferencePrecision,
+    cpu_threads: usize,
+) -> Result<Arc<dyn Encoder>, NnError> {
     match compute {
         Compute::Cpu => {
             let runtime = OnnxRuntimeConfig { intra_op_threads: cpu_threads.max(1), ..Default::default() };
-            Ok(Arc::new(OrtEncoder::load(path, &runtime)?))
+            Ok(Arc::new(OrtEncoder::load_with(path, &runtime, precision)?))
+        }
+        Compute::Gpu if precision != InferencePrecision::Fp32 => {
+            Err(NnError::Config(format!("{precision} runs on the CPU path (ONNX Runtime); the GPU path is fp32")))
         }
         Compute::Gpu => {
             let encoder = BurnEncoder::load(path, compute.device()?)?;
@@ -204,27 +215,67 @@ pub struct OrtEncoder {
     config: NetworkConfig,
     session: Mutex<Session>,
     threads: usize,
+    precision: InferencePrecision,
 }
 
 impl OrtEncoder {
     /// A session for the ONNX bytes of a network of `config` ([`crate::onnx::export`]).
     pub fn from_onnx(config: NetworkConfig, onnx: &[u8], runtime: &OnnxRuntimeConfig) -> Result<Self, NnError> {
+        Self::from_graph(config, onnx, runtime, InferencePrecision::Fp32)
+    }
+
+    /// A session for the int8 graph of `net` with activation `ranges`
+    /// ([`crate::onnx::export_int8`]).
+    pub fn int8(
+        config: NetworkConfig,
+        net: &EncoderNet,
+        ranges: &std::collections::HashMap<String, [f32; 2]>,
+        runtime: &OnnxRuntimeConfig,
+    ) -> Result<Self, NnError> {
+        let onnx = crate::onnx::export_int8(net, &config, ranges)?;
+        Self::from_graph(config, &onnx, runtime, InferencePrecision::Int8)
+    }
+
+    fn from_graph(
+        config: NetworkConfig,
+        onnx: &[u8],
+        runtime: &OnnxRuntimeConfig,
+        precision: InferencePrecision,
+    ) -> Result<Self, NnError> {
         let session = load_session(runtime, ModelSource::Bytes(onnx), "encoder").map_err(NnError::Onnx)?;
-        Ok(Self { config, session: Mutex::new(session), threads: runtime.intra_op_threads })
+        Ok(Self { config, session: Mutex::new(session), threads: runtime.intra_op_threads, precision })
     }
 
     /// Exports a weights file and loads it: the weights file stays the one artefact.
     pub fn load(path: &Path, runtime: &OnnxRuntimeConfig) -> Result<Self, NnError> {
+        Self::load_with(path, runtime, InferencePrecision::Fp32)
+    }
+
+    /// [`Self::load`] in `precision`; int8 reads the calibration kept beside the weights.
+    pub fn load_with(path: &Path, runtime: &OnnxRuntimeConfig, precision: InferencePrecision) -> Result<Self, NnError> {
         let device = Device::flex();
         let (config, net) = crate::weights::load(path, &device)?;
-        let onnx = crate::onnx::export(&net, &config)?;
-        Self::from_onnx(config, &onnx, runtime)
+        match precision {
+            InferencePrecision::Fp32 => {
+                let onnx = crate::onnx::export(&net, &config)?;
+                Self::from_onnx(config, &onnx, runtime)
+            }
+            InferencePrecision::Int8 => {
+                let calibration = Calibration::load_for(path)?;
+                Self::int8(config, &net, &calibration.ranges(), runtime)
+            }
+        }
     }
 }
 
 impl Encoder for OrtEncoder {
     fn describe(&self) -> String {
-        format!("onnxruntime cpu ({} thread{})", self.threads, if self.threads == 1 { "" } else { "s" })
+        format!(
+            "onnxruntime cpu {} ({} thread{})",
+            self.precision,
+            self.threads,
+            if self.threads == 1 { "" } else { "s" }
+        )
     }
 
     fn config(&self) -> &NetworkConfig {

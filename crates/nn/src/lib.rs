@@ -9,6 +9,8 @@
 //! * [`onnx`] — export of a network to an ONNX graph (our own writer, op for op).
 //! * [`encoder`] — the [`Encoder`] trait, [`CropBatch`], and the two inference paths:
 //!   [`BurnEncoder`] and [`OrtEncoder`] (ONNX Runtime, the CPU path).
+//! * [`quantize`] — int8 on the CPU: batch-norm folding, weight and activation
+//!   quantization, calibration ranges ([`InferencePrecision`]).
 //! * [`released`] — where the weights released with this version are.
 
 pub mod compute;
@@ -16,6 +18,7 @@ pub mod config;
 pub mod encoder;
 pub mod network;
 pub mod onnx;
+pub mod quantize;
 pub mod released;
 pub mod weights;
 
@@ -23,6 +26,7 @@ pub use compute::Compute;
 pub use config::{Head, NetworkConfig};
 pub use encoder::{BurnEncoder, CropBatch, Encoder, OrtEncoder};
 pub use network::{EncoderNet, EncoderOutput};
+pub use quantize::InferencePrecision;
 
 /// Why the encoder could not be built, loaded or run.
 #[derive(Debug, thiserror::Error)]

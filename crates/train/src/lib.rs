@@ -5,12 +5,14 @@
 //! * [`geometry`] — the decoder's geometry (shape, pose, crop projection) in burn tensors;
 //! * [`run`] — the loop (Adam, warm-up and piecewise-constant decay, progressive buckets),
 //!   checkpoints that resume, the JSON-lines log;
-//! * [`plot`] — the loss plot (PNG).
+//! * [`plot`] — the loss plot (PNG);
+//! * [`calibrate`] — activation ranges of trained weights for the int8 CPU encoder.
 //!
 //! Built: stage 1 (supervised on synthetic faces) with the resolution-consistency loss ℓ_s.
 //! Not yet: the self-supervised photometric stage, ℓ_f (InfoNCE) and the cross-pose
 //! SimSiam branch (see the encoder issue's notes).
 
+pub mod calibrate;
 pub mod data;
 pub mod geometry;
 pub mod plot;

@@ -7,6 +7,8 @@
 /// ONNX element types (TensorProto.DataType).
 pub const FLOAT: i32 = 1;
 pub const UINT8: i32 = 2;
+pub const INT8: i32 = 3;
+pub const INT32: i32 = 6;
 pub const INT64: i32 = 7;
 pub const DOUBLE: i32 = 11;
 
@@ -69,6 +71,21 @@ impl Node {
 pub enum TensorData {
     F32(Vec<f32>),
     I64(Vec<i64>),
+    I32(Vec<i32>),
+    I8(Vec<i8>),
+    U8(Vec<u8>),
+}
+
+impl TensorData {
+    fn len(&self) -> usize {
+        match self {
+            TensorData::F32(v) => v.len(),
+            TensorData::I64(v) => v.len(),
+            TensorData::I32(v) => v.len(),
+            TensorData::I8(v) => v.len(),
+            TensorData::U8(v) => v.len(),
+        }
+    }
 }
 
 #[derive(Clone, Debug)]
@@ -84,6 +101,18 @@ pub fn init_f32(name: &str, dims: &[i64], data: &[f32]) -> Initializer {
 
 pub fn init_i64(name: &str, dims: &[i64], data: &[i64]) -> Initializer {
     Initializer { name: name.into(), dims: dims.to_vec(), data: TensorData::I64(data.to_vec()) }
+}
+
+pub fn init_i32(name: &str, dims: &[i64], data: &[i32]) -> Initializer {
+    Initializer { name: name.into(), dims: dims.to_vec(), data: TensorData::I32(data.to_vec()) }
+}
+
+pub fn init_i8(name: &str, dims: &[i64], data: &[i8]) -> Initializer {
+    Initializer { name: name.into(), dims: dims.to_vec(), data: TensorData::I8(data.to_vec()) }
+}
+
+pub fn init_u8(name: &str, dims: &[i64], data: &[u8]) -> Initializer {
+    Initializer { name: name.into(), dims: dims.to_vec(), data: TensorData::U8(data.to_vec()) }
 }
 
 /// An initializer whose data does not match its shape.
@@ -108,10 +137,7 @@ impl Graph {
     /// Fails when an initializer's data does not fill its declared shape.
     pub fn to_model(&self, opset: i64, producer: &str) -> Result<Vec<u8>, GraphError> {
         for t in &self.initializers {
-            let len = match &t.data {
-                TensorData::F32(v) => v.len(),
-                TensorData::I64(v) => v.len(),
-            };
+            let len = t.data.len();
             let want = t.dims.iter().try_fold(1i64, |a, &d| if d < 0 { None } else { a.checked_mul(d) });
             if want != Some(len as i64) {
                 return Err(GraphError { name: t.name.clone(), dims: t.dims.clone(), len });
@@ -186,6 +212,9 @@ fn encode_tensor(t: &Initializer) -> Vec<u8> {
     let (ty, raw): (i32, Vec<u8>) = match &t.data {
         TensorData::F32(v) => (FLOAT, v.iter().flat_map(|x| x.to_le_bytes()).collect()),
         TensorData::I64(v) => (INT64, v.iter().flat_map(|x| x.to_le_bytes()).collect()),
+        TensorData::I32(v) => (INT32, v.iter().flat_map(|x| x.to_le_bytes()).collect()),
+        TensorData::I8(v) => (INT8, v.iter().map(|&x| x as u8).collect()),
+        TensorData::U8(v) => (UINT8, v.clone()),
     };
     put_varint_field(&mut b, 2, ty as u64);
     put_bytes(&mut b, 8, t.name.as_bytes());
