@@ -126,13 +126,14 @@ fn run(args: Args) -> anyhow::Result<()> {
     let stop = StopEarly { after: args.time_limit.map(std::time::Duration::from_secs), ..StopEarly::default() };
     let summary = train_until(&model, &config, &args.out, &device, stop, |e| {
         eprintln!(
-            "step {:>6}/{steps}  loss {:.4} (coef {:.4} shape {:.4} lmk {:.4} res {:.4})  landmarks {:.2} px  lr {:.1e}  {:.2} s (data wait {:.2} s)",
+            "step {:>6}/{steps}  loss {:.4} (coef {:.4} shape {:.4} lmk {:.4} res {:.4} feat {:.4})  landmarks {:.2} px  lr {:.1e}  {:.2} s (data wait {:.2} s)",
             e.step,
             e.total,
             e.coef,
             e.shape,
             e.landmarks,
             e.resolution,
+            e.feature,
             e.landmark_rms_px,
             e.lr,
             e.seconds,

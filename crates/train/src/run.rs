@@ -8,7 +8,10 @@
 //! * `ℓ_shape`: mean squared model-space vertex error over the decoder's vertices, per 5 mm;
 //! * `ℓ_lmk`: mean squared reprojection error of the 68 landmarks in crop pixels, per 4 px;
 //! * `ℓ_s` (Eq. 5.6): between a face and its copy at a lower bucket `j`, weight `j − 0`, the
-//!   higher resolution's prediction held fixed (stop-gradient), λ_s = 0.5.
+//!   higher resolution's prediction held fixed (stop-gradient), λ_s = 0.5;
+//! * `ℓ_f` (Eq. 5.8): InfoNCE between the same pairs' projected features, against a queue of
+//!   earlier faces' keys, λ_f = 0.5 ([`crate::contrast`]). Its projection trains beside the
+//!   encoder with an Adam of its own; the checkpoint keeps both and the queue.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -22,6 +25,7 @@ use facerecon_nn::weights::{self, PARAM_IDS_KEY, Precision};
 use facerecon_nn::{EncoderNet, Head, NetworkConfig};
 
 use crate::TrainError;
+use crate::contrast::{FeatureLoss, FeatureQueue, Projection, info_nce};
 use crate::data::{Augment, SyntheticFaces};
 use crate::geometry::GeometryDecoder;
 
@@ -44,6 +48,9 @@ pub struct TrainConfig {
     /// (0: bucket 0 only).
     pub bucket_every: u64,
     pub lambda_s: f64,
+    /// `ℓ_f` (off in runs written before it existed).
+    #[serde(default)]
+    pub feature: FeatureLoss,
     pub augment: Augment,
     /// Face vertices (besides the landmarks) the shape loss looks at.
     pub shape_vertices: usize,
@@ -77,6 +84,7 @@ impl TrainConfig {
             weight_decay: 1e-4,
             bucket_every: (steps / 8).max(1),
             lambda_s: 0.5,
+            feature: FeatureLoss::design(),
             augment: Augment::default(),
             shape_vertices: 400,
             distinct_faces: None,
@@ -95,6 +103,7 @@ impl TrainConfig {
             lr_peak: 2e-3,
             warmup_steps: (steps / 10).max(1),
             shape_vertices: 100,
+            feature: FeatureLoss { queue: 64, hidden: 32, dim: 16, ..FeatureLoss::design() },
             log_every: 1,
             checkpoint_every: (steps / 2).max(1),
             ..Self::full(network, steps)
@@ -113,6 +122,7 @@ impl TrainConfig {
         if !(self.lr_decay > 0.0 && self.lr_decay <= 1.0 && (0.0..1.0).contains(&self.weight_decay)) {
             return bad(format!("decay {} / weight decay {}", self.lr_decay, self.weight_decay));
         }
+        self.feature.validate()?;
         if self.distinct_faces == Some(0) {
             return bad("distinct faces must be ≥ 1".into());
         }
@@ -147,6 +157,9 @@ pub struct LogEntry {
     pub shape: f64,
     pub landmarks: f64,
     pub resolution: f64,
+    /// `ℓ_f` (0 before the first pairs, and in runs without it).
+    #[serde(default)]
+    pub feature: f64,
     /// RMS landmark error, crop pixels (a figure a person can read).
     pub landmark_rms_px: f64,
     /// Wall time per step, the mean since the previous logged step (on a GPU the steps in
@@ -209,6 +222,15 @@ impl RunFiles {
     pub fn plot(&self) -> PathBuf {
         self.dir.join("loss.png")
     }
+    pub fn projection(&self) -> PathBuf {
+        self.dir.join("projection.bpk")
+    }
+    pub fn projection_optimizer(&self) -> PathBuf {
+        self.dir.join("projection-optimizer.bpk")
+    }
+    pub fn queue(&self) -> PathBuf {
+        self.dir.join("feature-queue.bin")
+    }
 }
 
 /// When to stop before the run's last step, with a checkpoint (a session's time limit on a
@@ -251,6 +273,9 @@ pub fn train_until(
     // Resume when the folder holds a run of the same configuration.
     let autodiff = device.clone().autodiff();
     let mut optimizer = AdamConfig::new()
+        .with_weight_decay((config.weight_decay > 0.0).then(|| WeightDecayConfig::new(config.weight_decay as f32)))
+        .init();
+    let mut projection_optimizer = AdamConfig::new()
         .with_weight_decay((config.weight_decay > 0.0).then(|| WeightDecayConfig::new(config.weight_decay as f32)))
         .init();
     let (mut net, start, resumed_from) = if files.checkpoint().is_file() {
@@ -303,6 +328,22 @@ pub fn train_until(
         }
     };
 
+    // ℓ_f's projection and queue: from the checkpoint when resuming, else new (seeded).
+    let feature = &config.feature;
+    let (mut projection, mut queue) = if resumed_from.is_some() && feature.lambda > 0.0 {
+        let p = Projection::new(config.network.expansion, feature, &autodiff)
+            .try_load_file(files.projection())
+            .map_err(|e| TrainError::Config(format!("{}: {e:?}", files.projection().display())))?;
+        let opt = std::fs::read(files.projection_optimizer()).map_err(io(&files.projection_optimizer()))?;
+        projection_optimizer = projection_optimizer
+            .from_bytes(burn::tensor::Bytes::from_bytes_vec(opt))
+            .map_err(|e| TrainError::Config(format!("projection optimizer state: {e:?}")))?;
+        (p, FeatureQueue::load(&files.queue(), feature.queue, feature.dim, &autodiff)?)
+    } else {
+        autodiff.seed(config.seed.wrapping_add(0xF0));
+        (Projection::new(config.network.expansion, feature, &autodiff), FeatureQueue::new(feature.queue, feature.dim))
+    };
+
     let data = SyntheticFaces::new(model, &config.network, config.augment.clone(), config.seed)?;
     let geometry = GeometryDecoder::new(model, &config.network, config.shape_vertices, &autodiff);
     let units = Tensor::<2>::from_data(
@@ -337,7 +378,8 @@ pub fn train_until(
             let n = batch.crops.len();
             let (images, buckets) = batch.crops.tensors(&autodiff);
             let target = Tensor::<2>::from_data(TensorData::new(batch.targets.clone(), [n, k]), &autodiff);
-            let pred = net.forward(images, buckets, &config.network).coefficients;
+            let out = net.forward(images, buckets, &config.network);
+            let pred = out.coefficients;
 
             let coef = ((pred.clone() - target.clone()) / units.clone()).powf_scalar(2.0).mean();
             let shape_err = geometry.shape(pred.clone()) - geometry.shape(target.clone());
@@ -347,6 +389,7 @@ pub fn train_until(
             let landmarks = lmk_sq.clone() / 16.0;
             let mut total = coef.clone() + shape.clone() + landmarks.clone();
             let mut resolution = Tensor::<1>::zeros([1], &autodiff);
+            let mut feature_loss = Tensor::<1>::zeros([1], &autodiff);
             if !batch.pairs.is_empty() {
                 let idx = |f: fn(&(usize, usize, f32)) -> i64| {
                     let v: Vec<i64> = batch.pairs.iter().map(f).collect();
@@ -358,16 +401,30 @@ pub fn train_until(
                 let w = Tensor::<2>::from_data(TensorData::new(w, [batch.pairs.len(), 1]), &autodiff);
                 resolution = (((low - high) / units.clone()).powf_scalar(2.0) * w).mean();
                 total = total + resolution.clone() * config.lambda_s;
+                if feature.lambda > 0.0 {
+                    let features = Tensor::cat(vec![out.face_features, out.pose_features], 1);
+                    let keys = projection.forward(features.clone().select(0, idx(|p| p.0 as i64)).detach()).detach();
+                    let queries = projection.forward(features.select(0, idx(|p| p.1 as i64)));
+                    feature_loss = info_nce(queries, keys.clone(), queue.negatives(), feature.temperature);
+                    total = total + feature_loss.clone() * feature.lambda;
+                    queue.push(keys);
+                }
             }
             let stopping =
                 stop.after_step.is_some_and(|s| step + 1 >= s) || stop.after.is_some_and(|d| started.elapsed() >= d);
             let logged = (step + 1) % config.log_every == 0 || step + 1 == config.steps || stopping || step == start;
             // The loss terms are read back on logged steps only, all in one transfer: on a GPU
             // every read-back waits for the queue to drain.
-            let terms = logged.then(|| Tensor::cat(vec![total.clone(), coef, shape, landmarks, resolution, lmk_sq], 0));
+            let terms = logged
+                .then(|| Tensor::cat(vec![total.clone(), coef, shape, landmarks, resolution, lmk_sq, feature_loss], 0));
             let lr = config.learning_rate(step);
-            let grads = GradientsParams::from_grads(total.backward(), &net);
-            net = optimizer.step(lr, net, grads);
+            let mut grads = total.backward();
+            let net_grads = GradientsParams::from_module(&mut grads, &net);
+            let projection_grads = GradientsParams::from_module(&mut grads, &projection);
+            net = optimizer.step(lr, net, net_grads);
+            if feature.lambda > 0.0 {
+                projection = projection_optimizer.step(lr, projection, projection_grads);
+            }
 
             if let Some(terms) = terms {
                 let v = terms.detach().into_data().convert::<f64>().try_into_vec::<f64>().unwrap_or_default();
@@ -385,6 +442,7 @@ pub fn train_until(
                     shape: v(2),
                     landmarks: v(3),
                     resolution: v(4),
+                    feature: v(6),
                     landmark_rms_px: v(5).sqrt(),
                     seconds,
                     wait_seconds,
@@ -400,6 +458,18 @@ pub fn train_until(
                 last = Some(entry);
             }
             if (step + 1) % config.checkpoint_every == 0 || step + 1 == config.steps || stopping {
+                if feature.lambda > 0.0 {
+                    // Before the encoder's checkpoint: a checkpoint always has these beside it.
+                    projection
+                        .clone()
+                        .save_file(files.projection())
+                        .map_err(|e| TrainError::Config(format!("{}: {e:?}", files.projection().display())))?;
+                    let opt = projection_optimizer
+                        .into_bytes()
+                        .map_err(|e| TrainError::Config(format!("projection optimizer state: {e:?}")))?;
+                    weights::write_atomically(&files.projection_optimizer(), &opt)?;
+                    queue.save(&files.queue())?;
+                }
                 save_checkpoint(&files, &net, config, &optimizer, step + 1)?;
             }
             if stopping {

@@ -73,6 +73,8 @@ fn a_short_tiny_run_learns_and_a_resumed_run_matches_an_uninterrupted_one() {
     eprintln!("landmark RMS: first 4 steps {early:.1} px, last 4 {late:.1} px");
     assert!(late < 0.6 * early, "the landmark error must fall: {early:.1} → {late:.1} px");
     assert!(log[12..].iter().any(|e| e.resolution > 0.0), "ℓ_s must be active once buckets are added");
+    // ℓ_f: 0 until the queue holds keys (no negatives), then active.
+    assert!(log[..8].iter().all(|e| e.feature == 0.0) && log[9..].iter().all(|e| e.feature > 0.0));
     assert!(summary.weights.is_file());
     // The released file loads as an encoder.
     let enc = facerecon_nn::BurnEncoder::load(&summary.weights, device.clone()).unwrap();
@@ -99,14 +101,16 @@ fn a_short_tiny_run_learns_and_a_resumed_run_matches_an_uninterrupted_one() {
 
     // A new run continued from the fp16 weights of step 12 (what a lent machine returns)
     // starts at step 13 of the same schedule; its first loss, taken before any update, is
-    // the uninterrupted run's step-13 loss up to fp16 rounding.
+    // the uninterrupted run's step-13 loss up to fp16 rounding — less ℓ_f, whose projection
+    // and queue start afresh in such a run (the fp16 file holds the encoder only).
     let continued = tempdir("continued");
     let config3 = TrainConfig { init_weights: Some(at12.clone()), steps: 14, ..config.clone() };
     train(model, &config3, &continued, &device, |_| {}).unwrap();
     let log3 = read_log(&continued.join("log.jsonl")).unwrap();
     assert_eq!(log3.first().map(|e| e.step), Some(13));
     assert_eq!(log3.first().map(|e| e.lr), Some(log[12].lr));
-    let (a, b) = (log[12].total, log3[0].total);
+    let network_terms = |e: &facerecon_train::LogEntry| e.total - config.feature.lambda * e.feature;
+    let (a, b) = (network_terms(&log[12]), network_terms(&log3[0]));
     assert!((a - b).abs() <= 0.01 * a.abs(), "step 13: uninterrupted {a}, continued from fp16 {b}");
     let _ = std::fs::remove_dir_all(&whole);
     let _ = std::fs::remove_dir_all(&split);
