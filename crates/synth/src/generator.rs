@@ -241,6 +241,45 @@ impl Generator<'_> {
     }
 }
 
+impl Generator<'_> {
+    /// The face of `c` drawn again under `rotation`, as the front end's crop of it (`side`
+    /// px square, framed by its landmarks as [`SynthConfig::crop_frame`] frames samples),
+    /// with hair and clothes colours and a background drawn from `rng`. `c`'s own pose is
+    /// replaced. The cross-pose branch of training (DESIGN §7) encodes this beside the
+    /// photo `c` was predicted from.
+    pub fn render_crop(
+        &self,
+        c: &Coefficients,
+        rotation: [f32; 3],
+        side: u32,
+        rng: &mut Rng,
+    ) -> Result<RgbImage, SynthError> {
+        if side == 0 || !rotation.iter().all(|r| r.is_finite()) {
+            return Err(SynthError::Config(format!("re-rendering at {side} px, rotation {rotation:?}")));
+        }
+        let model = self.model;
+        let shape = model.shape(&c.identity, &c.expression, Extent::Face).map_err(SynthError::model)?;
+        let lm: Vec<[f32; 3]> = model.landmarks().iter().map(|&i| shape[i as usize]).collect();
+        let mut camera = Camera { aspect: 1.0, ..Camera::default() };
+        let centre = 0.5 * side as f32 - 0.5;
+        let translation = place_face(&lm, rotation, &camera, side, side, [centre, centre], side as f32);
+        let depth = -translation[2];
+        camera.near = (depth - 600.0).max(1.0);
+        camera.far = depth + 600.0;
+        let posed = Coefficients { rotation, translation, ..c.clone() };
+        let colors = PartColors::random(rng);
+        let (frame, _) = self.render(&posed, &colors, camera, side, side)?;
+        let mut image = random_background(side, side, rng);
+        for (i, &t) in frame.visibility.triangle.iter().enumerate() {
+            if t != BACKGROUND {
+                let col = frame.color[i];
+                image.put_pixel(i as u32 % side, i as u32 / side, image::Rgb([col[0], col[1], col[2]]));
+            }
+        }
+        Ok(image)
+    }
+}
+
 /// Translation that puts the landmarks' centroid on the ray through pixel `centre` at the
 /// distance where their crop (see [`Crop`]) is `side` pixels: solved on the projection
 /// itself (fixed-point rounds until within 0.01 px: the crop side is ∝ 1/distance up to

@@ -162,6 +162,40 @@ fn crop_frame_samples_are_the_front_ends_crop_of_the_face() {
     assert!(SynthConfig { crop_frame: Some(8), ..Default::default() }.validate().is_err());
 }
 
+/// Re-rendering a crop-framed sample's own coefficients under its own rotation draws the
+/// same face where the sample's mask says the face is; under another rotation it draws a
+/// face that differs there, still filling the crop.
+#[test]
+fn render_crop_redraws_a_face_under_a_new_pose() {
+    let model = model();
+    let g = Generator::new(&model, SynthConfig { crop_frame: Some(224), ..Default::default() }).unwrap();
+    let mut rng = facerecon_synth::rng::Rng::new(5);
+    for i in 0..3 {
+        let s = g.sample(12, i).unwrap();
+        let c = &s.truth.coefficients;
+        let same = g.render_crop(c, c.rotation, 224, &mut rng).unwrap();
+        let (mut face, mut equal) = (0, 0);
+        for m in s.mask.pixels() {
+            face += (m[0] == 255) as u32;
+        }
+        for ((a, b), m) in s.image.pixels().zip(same.pixels()).zip(s.mask.pixels()) {
+            equal += (m[0] == 255 && a == b) as u32;
+        }
+        assert!(equal as f64 > 0.99 * face as f64, "sample {i}: {equal} of {face} face pixels equal");
+        let turned = facerecon_synth::pose::Euler { yaw_deg: 60.0, pitch_deg: 0.0, roll_deg: 0.0 }.axis_angle();
+        let other = g.render_crop(c, turned, 224, &mut rng).unwrap();
+        let changed = s
+            .image
+            .pixels()
+            .zip(other.pixels())
+            .zip(s.mask.pixels())
+            .filter(|((a, b), m)| m[0] == 255 && a != b)
+            .count();
+        assert!(changed as f64 > 0.5 * face as f64, "sample {i}: only {changed} of {face} face pixels changed");
+    }
+    assert!(g.render_crop(&g.sample(12, 0).unwrap().truth.coefficients, [f32::NAN; 3], 224, &mut rng).is_err());
+}
+
 #[test]
 fn written_files_read_back_to_the_sample() {
     let model = model();

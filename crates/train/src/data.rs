@@ -33,6 +33,8 @@ impl Default for Augment {
 /// target rows, and the pairs for the resolution-consistency loss.
 pub struct Batch {
     pub crops: CropBatch,
+    /// The faces themselves: the first `faces` crops (the rest are their copies).
+    pub faces: usize,
     /// `[rows, output_size]`, row-major.
     pub targets: Vec<f32>,
     /// `(high, low, weight)`: crop indices of a face and its copy, weight `j − i` (bucket gap).
@@ -108,7 +110,39 @@ impl<'m> SyntheticFaces<'m> {
                 targets.extend(row);
             }
         }
-        Ok(Batch { crops, targets, pairs })
+        Ok(Batch { crops, faces: items.len(), targets, pairs })
+    }
+
+    /// The cross-pose branch's second views (`crate::crosspose`): each row's face (the
+    /// network's prediction for face `first_index + i` of the run) drawn again as a crop under
+    /// its rotation from `cross`, with the same photo-like corruptions, at bucket 0.
+    pub fn rerender(
+        &self,
+        rows: &[Vec<f32>],
+        first_index: u64,
+        cross: &crate::crosspose::CrossPose,
+    ) -> Result<CropBatch, TrainError> {
+        let size = self.config.input_size as u32;
+        let images = rows
+            .par_iter()
+            .enumerate()
+            .map(|(i, row)| {
+                let index = first_index + i as u64;
+                let c = self.config.coefficients(row).map_err(|e| TrainError::Data(e.to_string()))?;
+                let mut rng = Rng::for_sample(self.seed ^ 0x5EE5_C805, index);
+                let rotation = cross.rotation(self.seed, index);
+                let image = self
+                    .generator
+                    .render_crop(&c, rotation, size, &mut rng)
+                    .map_err(|e| TrainError::Data(format!("re-rendering face {index}: {e}")))?;
+                Ok(self.photo_like(image, &mut rng))
+            })
+            .collect::<Result<Vec<_>, TrainError>>()?;
+        let mut crops = CropBatch::new(self.config.input_size);
+        for image in &images {
+            crops.push(image, Bucket::B0).map_err(|e| TrainError::Data(e.to_string()))?;
+        }
+        Ok(crops)
     }
 
     fn photo_like(&self, mut image: RgbImage, rng: &mut Rng) -> RgbImage {

@@ -1,6 +1,7 @@
 //! Training of the encoder (DESIGN §7), the library behind `facerecon-train`.
 //!
 //! * [`contrast`] — the feature-level resolution loss ℓ_f: projection, InfoNCE, key queue;
+//! * [`crosspose`] — the cross-pose SimSiam branch: its head, loss and re-rendering poses;
 //! * [`data`] — batches of synthetic faces rendered by the engine with exact ground truth,
 //!   photo-like corruptions, and lower-resolution copies for the resolution-aware loss;
 //! * [`geometry`] — the decoder's geometry (shape, pose, crop projection) in burn tensors;
@@ -10,11 +11,12 @@
 //! * [`calibrate`] — activation ranges of trained weights for the int8 CPU encoder.
 //!
 //! Built: stage 1 (supervised on synthetic faces) with the resolution-consistency losses ℓ_s
-//! and ℓ_f. Not yet: the self-supervised photometric stage and the cross-pose SimSiam branch
-//! (see the encoder issue's notes).
+//! and ℓ_f and the cross-pose branch. Not yet: the self-supervised photometric stage on
+//! photos (see the encoder issue's notes).
 
 pub mod calibrate;
 pub mod contrast;
+pub mod crosspose;
 pub mod data;
 pub mod geometry;
 pub mod plot;

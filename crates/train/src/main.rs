@@ -126,7 +126,7 @@ fn run(args: Args) -> anyhow::Result<()> {
     let stop = StopEarly { after: args.time_limit.map(std::time::Duration::from_secs), ..StopEarly::default() };
     let summary = train_until(&model, &config, &args.out, &device, stop, |e| {
         eprintln!(
-            "step {:>6}/{steps}  loss {:.4} (coef {:.4} shape {:.4} lmk {:.4} res {:.4} feat {:.4})  landmarks {:.2} px  lr {:.1e}  {:.2} s (data wait {:.2} s)",
+            "step {:>6}/{steps}  loss {:.4} (coef {:.4} shape {:.4} lmk {:.4} res {:.4} feat {:.4} cross-pose {:.4})  landmarks {:.2} px  lr {:.1e}  {:.2} s (data wait {:.2} s)",
             e.step,
             e.total,
             e.coef,
@@ -134,6 +134,7 @@ fn run(args: Args) -> anyhow::Result<()> {
             e.landmarks,
             e.resolution,
             e.feature,
+            e.cross_pose,
             e.landmark_rms_px,
             e.lr,
             e.seconds,

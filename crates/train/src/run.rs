@@ -11,7 +11,10 @@
 //!   higher resolution's prediction held fixed (stop-gradient), λ_s = 0.5;
 //! * `ℓ_f` (Eq. 5.8): InfoNCE between the same pairs' projected features, against a queue of
 //!   earlier faces' keys, λ_f = 0.5 ([`crate::contrast`]). Its projection trains beside the
-//!   encoder with an Adam of its own; the checkpoint keeps both and the queue.
+//!   encoder with an Adam of its own; the checkpoint keeps both and the queue;
+//! * `ℓ_cf` (Eq. 4.1–4.2): SimSiam between each face and a re-rendering of the face the
+//!   network predicts for it under a random pose, on the face subspace, λ_cf = 1
+//!   ([`crate::crosspose`]); its head likewise.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -26,6 +29,7 @@ use facerecon_nn::{EncoderNet, Head, NetworkConfig};
 
 use crate::TrainError;
 use crate::contrast::{FeatureLoss, FeatureQueue, Projection, info_nce};
+use crate::crosspose::{CrossPose, SimSiamHead, simsiam_loss};
 use crate::data::{Augment, SyntheticFaces};
 use crate::geometry::GeometryDecoder;
 
@@ -51,6 +55,9 @@ pub struct TrainConfig {
     /// `ℓ_f` (off in runs written before it existed).
     #[serde(default)]
     pub feature: FeatureLoss,
+    /// The cross-pose branch (off in runs written before it existed).
+    #[serde(default)]
+    pub cross_pose: CrossPose,
     pub augment: Augment,
     /// Face vertices (besides the landmarks) the shape loss looks at.
     pub shape_vertices: usize,
@@ -85,6 +92,7 @@ impl TrainConfig {
             bucket_every: (steps / 8).max(1),
             lambda_s: 0.5,
             feature: FeatureLoss::design(),
+            cross_pose: CrossPose::design(),
             augment: Augment::default(),
             shape_vertices: 400,
             distinct_faces: None,
@@ -104,6 +112,7 @@ impl TrainConfig {
             warmup_steps: (steps / 10).max(1),
             shape_vertices: 100,
             feature: FeatureLoss { queue: 64, hidden: 32, dim: 16, ..FeatureLoss::design() },
+            cross_pose: CrossPose { projector: 64, predictor_hidden: 16, ..CrossPose::design() },
             log_every: 1,
             checkpoint_every: (steps / 2).max(1),
             ..Self::full(network, steps)
@@ -123,6 +132,7 @@ impl TrainConfig {
             return bad(format!("decay {} / weight decay {}", self.lr_decay, self.weight_decay));
         }
         self.feature.validate()?;
+        self.cross_pose.validate()?;
         if self.distinct_faces == Some(0) {
             return bad("distinct faces must be ≥ 1".into());
         }
@@ -160,6 +170,9 @@ pub struct LogEntry {
     /// `ℓ_f` (0 before the first pairs, and in runs without it).
     #[serde(default)]
     pub feature: f64,
+    /// `ℓ_cf` (in [−1, 1]; 0 in runs without the branch).
+    #[serde(default)]
+    pub cross_pose: f64,
     /// RMS landmark error, crop pixels (a figure a person can read).
     pub landmark_rms_px: f64,
     /// Wall time per step, the mean since the previous logged step (on a GPU the steps in
@@ -231,6 +244,12 @@ impl RunFiles {
     pub fn queue(&self) -> PathBuf {
         self.dir.join("feature-queue.bin")
     }
+    pub fn simsiam(&self) -> PathBuf {
+        self.dir.join("simsiam.bpk")
+    }
+    pub fn simsiam_optimizer(&self) -> PathBuf {
+        self.dir.join("simsiam-optimizer.bpk")
+    }
 }
 
 /// When to stop before the run's last step, with a checkpoint (a session's time limit on a
@@ -275,9 +294,12 @@ pub fn train_until(
     let mut optimizer = AdamConfig::new()
         .with_weight_decay((config.weight_decay > 0.0).then(|| WeightDecayConfig::new(config.weight_decay as f32)))
         .init();
-    let mut projection_optimizer = AdamConfig::new()
-        .with_weight_decay((config.weight_decay > 0.0).then(|| WeightDecayConfig::new(config.weight_decay as f32)))
-        .init();
+    let adam = || {
+        AdamConfig::new()
+            .with_weight_decay((config.weight_decay > 0.0).then(|| WeightDecayConfig::new(config.weight_decay as f32)))
+            .init()
+    };
+    let (mut projection_optimizer, mut simsiam_optimizer) = (adam(), adam());
     let (mut net, start, resumed_from) = if files.checkpoint().is_file() {
         let stored: TrainConfig = read_json(&files.config())?;
         if &stored != config {
@@ -343,6 +365,21 @@ pub fn train_until(
         autodiff.seed(config.seed.wrapping_add(0xF0));
         (Projection::new(config.network.expansion, feature, &autodiff), FeatureQueue::new(feature.queue, feature.dim))
     };
+    // The cross-pose branch's head, likewise.
+    let cross = &config.cross_pose;
+    let face_dim = config.network.expansion - config.network.pose_features;
+    let mut simsiam = if resumed_from.is_some() && cross.lambda > 0.0 {
+        let opt = std::fs::read(files.simsiam_optimizer()).map_err(io(&files.simsiam_optimizer()))?;
+        simsiam_optimizer = simsiam_optimizer
+            .from_bytes(burn::tensor::Bytes::from_bytes_vec(opt))
+            .map_err(|e| TrainError::Config(format!("SimSiam optimizer state: {e:?}")))?;
+        SimSiamHead::new(face_dim, cross, &autodiff)
+            .try_load_file(files.simsiam())
+            .map_err(|e| TrainError::Config(format!("{}: {e:?}", files.simsiam().display())))?
+    } else {
+        autodiff.seed(config.seed.wrapping_add(0xC5));
+        SimSiamHead::new(face_dim, cross, &autodiff)
+    };
 
     let data = SyntheticFaces::new(model, &config.network, config.augment.clone(), config.seed)?;
     let geometry = GeometryDecoder::new(model, &config.network, config.shape_vertices, &autodiff);
@@ -402,7 +439,7 @@ pub fn train_until(
                 resolution = (((low - high) / units.clone()).powf_scalar(2.0) * w).mean();
                 total = total + resolution.clone() * config.lambda_s;
                 if feature.lambda > 0.0 {
-                    let features = Tensor::cat(vec![out.face_features, out.pose_features], 1);
+                    let features = Tensor::cat(vec![out.face_features.clone(), out.pose_features.clone()], 1);
                     let keys = projection.forward(features.clone().select(0, idx(|p| p.0 as i64)).detach()).detach();
                     let queries = projection.forward(features.select(0, idx(|p| p.1 as i64)));
                     feature_loss = info_nce(queries, keys.clone(), queue.negatives(), feature.temperature);
@@ -410,20 +447,42 @@ pub fn train_until(
                     queue.push(keys);
                 }
             }
+            let mut cross_loss = Tensor::<1>::zeros([1], &autodiff);
+            if cross.lambda > 0.0 {
+                // Second views: the predicted faces drawn again under random poses (on the
+                // CPU, from the predictions read back).
+                let faces = batch.faces;
+                let rows = pred.clone().narrow(0, 0, faces).detach().into_data().convert::<f32>();
+                let rows = rows.try_into_vec::<f32>().map_err(|e| TrainError::Data(format!("{e:?}")))?;
+                let rows: Vec<Vec<f32>> = rows.chunks_exact(k).map(<[f32]>::to_vec).collect();
+                let views = data.rerender(&rows, step * config.batch_size as u64, cross)?;
+                let (view_images, view_buckets) = views.tensors(&autodiff);
+                let second = net.forward(view_images, view_buckets, &config.network).face_features;
+                cross_loss = simsiam_loss(&simsiam, out.face_features.narrow(0, 0, faces), second);
+                total = total + cross_loss.clone() * cross.lambda;
+            }
             let stopping =
                 stop.after_step.is_some_and(|s| step + 1 >= s) || stop.after.is_some_and(|d| started.elapsed() >= d);
             let logged = (step + 1) % config.log_every == 0 || step + 1 == config.steps || stopping || step == start;
             // The loss terms are read back on logged steps only, all in one transfer: on a GPU
             // every read-back waits for the queue to drain.
-            let terms = logged
-                .then(|| Tensor::cat(vec![total.clone(), coef, shape, landmarks, resolution, lmk_sq, feature_loss], 0));
+            let terms = logged.then(|| {
+                Tensor::cat(
+                    vec![total.clone(), coef, shape, landmarks, resolution, lmk_sq, feature_loss, cross_loss],
+                    0,
+                )
+            });
             let lr = config.learning_rate(step);
             let mut grads = total.backward();
             let net_grads = GradientsParams::from_module(&mut grads, &net);
             let projection_grads = GradientsParams::from_module(&mut grads, &projection);
+            let simsiam_grads = GradientsParams::from_module(&mut grads, &simsiam);
             net = optimizer.step(lr, net, net_grads);
             if feature.lambda > 0.0 {
                 projection = projection_optimizer.step(lr, projection, projection_grads);
+            }
+            if cross.lambda > 0.0 {
+                simsiam = simsiam_optimizer.step(lr, simsiam, simsiam_grads);
             }
 
             if let Some(terms) = terms {
@@ -443,6 +502,7 @@ pub fn train_until(
                     landmarks: v(3),
                     resolution: v(4),
                     feature: v(6),
+                    cross_pose: v(7),
                     landmark_rms_px: v(5).sqrt(),
                     seconds,
                     wait_seconds,
@@ -469,6 +529,16 @@ pub fn train_until(
                         .map_err(|e| TrainError::Config(format!("projection optimizer state: {e:?}")))?;
                     weights::write_atomically(&files.projection_optimizer(), &opt)?;
                     queue.save(&files.queue())?;
+                }
+                if cross.lambda > 0.0 {
+                    simsiam
+                        .clone()
+                        .save_file(files.simsiam())
+                        .map_err(|e| TrainError::Config(format!("{}: {e:?}", files.simsiam().display())))?;
+                    let opt = simsiam_optimizer
+                        .into_bytes()
+                        .map_err(|e| TrainError::Config(format!("SimSiam optimizer state: {e:?}")))?;
+                    weights::write_atomically(&files.simsiam_optimizer(), &opt)?;
                 }
                 save_checkpoint(&files, &net, config, &optimizer, step + 1)?;
             }

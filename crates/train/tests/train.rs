@@ -75,6 +75,8 @@ fn a_short_tiny_run_learns_and_a_resumed_run_matches_an_uninterrupted_one() {
     assert!(log[12..].iter().any(|e| e.resolution > 0.0), "ℓ_s must be active once buckets are added");
     // ℓ_f: 0 until the queue holds keys (no negatives), then active.
     assert!(log[..8].iter().all(|e| e.feature == 0.0) && log[9..].iter().all(|e| e.feature > 0.0));
+    // ℓ_cf: a negative cosine, active from the first step.
+    assert!(log.iter().all(|e| e.cross_pose != 0.0 && (-1.0..=1.0).contains(&e.cross_pose)));
     assert!(summary.weights.is_file());
     // The released file loads as an encoder.
     let enc = facerecon_nn::BurnEncoder::load(&summary.weights, device.clone()).unwrap();
