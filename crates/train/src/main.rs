@@ -43,6 +43,12 @@ struct Args {
     /// Peak learning rate.
     #[arg(long)]
     lr: Option<f64>,
+    /// λ_f of the feature-level resolution loss ℓ_f (0: off) [default: 0.5].
+    #[arg(long)]
+    lambda_f: Option<f64>,
+    /// λ_cf of the cross-pose branch (0: off, the ablation DESIGN §7 compares) [default: 1].
+    #[arg(long)]
+    lambda_cf: Option<f64>,
     /// Face model file (default: ICT-FaceKit, built from the shared folder).
     #[arg(long)]
     model: Option<PathBuf>,
@@ -109,6 +115,12 @@ fn run(args: Args) -> anyhow::Result<()> {
     config.init_weights = args.init_weights.clone();
     if let Some(s) = args.seed {
         config.seed = s;
+    }
+    if let Some(l) = args.lambda_f {
+        config.feature.lambda = l;
+    }
+    if let Some(l) = args.lambda_cf {
+        config.cross_pose.lambda = l;
     }
     if let Some(lr) = args.lr {
         config.lr_peak = lr;
