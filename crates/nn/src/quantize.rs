@@ -135,7 +135,14 @@ impl Calibration {
     /// Reads the calibration of `weights` and checks that it was made with that file.
     pub fn load_for(weights: &Path) -> Result<Self, NnError> {
         let path = Self::path_for(weights);
-        let text = std::fs::read_to_string(&path).map_err(|source| NnError::Io { path: path.clone(), source })?;
+        let text = std::fs::read_to_string(&path).map_err(|source| match source.kind() {
+            std::io::ErrorKind::NotFound => NnError::Weights(format!(
+                "no int8 calibration {}: make it with `facerecon-calibrate {}`",
+                path.display(),
+                weights.display()
+            )),
+            _ => NnError::Io { path: path.clone(), source },
+        })?;
         let c: Calibration = serde_json::from_str(&text)
             .map_err(|e| NnError::Weights(format!("{}: not an int8 calibration file: {e}", path.display())))?;
         let sha = sha256_file(weights)?;

@@ -25,6 +25,7 @@ fn the_int8_encoder_places_landmarks_as_the_fp32_one_does() {
     let load = |p| facerecon_nn::encoder::load(&weights, Compute::Cpu, p, 2);
     let missing = load(InferencePrecision::Int8).err().expect("no calibration yet");
     assert!(missing.to_string().contains("encoder.int8.json"), "{missing}");
+    assert!(missing.to_string().contains("facerecon-calibrate"), "{missing}");
 
     let runtime = OnnxRuntimeConfig { intra_op_threads: 2, ..OnnxRuntimeConfig::default() };
     let calibration = facerecon_train::calibrate::calibrate_int8(&model, &weights, 32, 2, &runtime).unwrap();
