@@ -336,6 +336,7 @@ fn the_int8_graph_stays_close_to_the_fp32_network() {
     let Some(runtime) = ort_runtime() else { return };
     let config = tiny();
     let device = Device::default();
+    device.seed(1);
     let net = perturbed(&config, &device);
     let input = batch(&config, &[Bucket::B0, Bucket::B1, Bucket::B2, Bucket::B3, Bucket::B0, Bucket::B2]);
     let reference = BurnEncoder::new(config.clone(), net.clone(), device).encode_rows(&input).unwrap();
@@ -360,30 +361,34 @@ fn the_int8_graph_stays_close_to_the_fp32_network() {
     assert!(int8.describe().contains("int8"), "{}", int8.describe());
     let quantized = int8.encode_rows(&input).unwrap();
     let d_int8 = max_abs_diff(&quantized, &reference);
-    // Per head: the RMS of the int8 error against the RMS spread of the fp32 answers over
-    // the crops (what the crops change, not the heads' constant offsets).
+    // Each output's int8 error against its spread over the crops (what the crops change,
+    // not the heads' constant offsets), as an RMS over all outputs; per head for the log.
     let mut column = 0;
-    let mut worst = 0.0f32;
+    let mut pooled = Vec::new();
     for h in Head::ALL {
         let cols = column..column + config.head_size(h);
         column = cols.end;
-        let (mut err, mut spread) = (0.0f32, 0.0f32);
-        for j in cols.clone() {
-            let mean = reference.iter().map(|r| r[j]).sum::<f32>() / reference.len() as f32;
-            for (q, r) in quantized.iter().zip(&reference) {
-                err += (q[j] - r[j]).powi(2);
-                spread += (r[j] - mean).powi(2);
-            }
-        }
-        let relative = (err / spread.max(1e-12)).sqrt();
-        eprintln!("{h:?}: int8 error {relative:.4} of the spread");
-        worst = worst.max(relative);
+        let ratios: Vec<f32> = cols
+            .map(|j| {
+                let mean = reference.iter().map(|r| r[j]).sum::<f32>() / reference.len() as f32;
+                let (err, spread) = quantized
+                    .iter()
+                    .zip(&reference)
+                    .fold((0.0f32, 0.0f32), |(e, s), (q, r)| (e + (q[j] - r[j]).powi(2), s + (r[j] - mean).powi(2)));
+                err / spread.max(1e-12)
+            })
+            .collect();
+        eprintln!("{h:?}: int8 error {:.4} of the spread", (ratios.iter().sum::<f32>() / ratios.len() as f32).sqrt());
+        pooled.extend(ratios);
     }
-    eprintln!("folded fp32 max |Δ| {d_folded:.2e}; int8 max |Δ| {d_int8:.3}, output scale {scale:.1}");
+    let relative = (pooled.iter().sum::<f32>() / pooled.len() as f32).sqrt();
+    eprintln!(
+        "int8 error {relative:.4} of the spread; folded fp32 max |Δ| {d_folded:.2e}; int8 max |Δ| {d_int8:.3}, output scale {scale:.1}"
+    );
     assert!(d_folded <= 1e-4 * scale, "folding: max |Δ| {d_folded} (scale {scale})");
-    // Measured 0.03–0.05 on this random network (its init is not seeded); a wrong scale,
-    // bias or zero point gives errors of the order of the spread itself.
-    assert!(worst < 0.15, "int8 error {worst} of the answers' spread");
+    // 0.09 with this seed (0.05–0.13 over seeds 0–15 of this random network); activation
+    // ranges cut to 60 % give errors of the order of the spread itself (0.7–0.9).
+    assert!(relative < 0.25, "int8 error {relative} of the answers' spread");
     assert!(d_int8 > 10.0 * d_folded, "the int8 graph answers like fp32 ({d_int8} against {d_folded})");
 
     let mut partial = ranges.clone();
