@@ -2,7 +2,8 @@
 //! as the front end's crop of it (`SynthConfig::crop_frame`), with exact coefficients; made
 //! more like a photo by occluders, blur, sensor noise and JPEG artefacts; and, for the
 //! resolution-aware losses, paired with a copy of itself degraded to a lower bucket by
-//! bicubic down- and up-sampling (thesis §5.2.1).
+//! bicubic down- and up-sampling (thesis §5.2.1). Also the cross-pose branch's second views:
+//! the network's predicted faces drawn again under new poses ([`SyntheticFaces::rerender`]).
 
 use facerecon_model::MorphableModel;
 use facerecon_nn::{CropBatch, NetworkConfig};

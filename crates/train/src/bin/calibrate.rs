@@ -2,7 +2,7 @@
 //! int8 CPU encoder and writes them beside the weights (`<weights>.int8.json`).
 //!
 //! ```text
-//! facerecon-calibrate weights/encoder-ict-v0.1.safetensors            # 512 faces, ≈ 1 min
+//! facerecon-calibrate weights/encoder-ict-v0.1.safetensors            # 512 faces, ≈ 20 s on 2 cores
 //! facerecon-server --encoder-precision int8                           # then serve with it
 //! ```
 
