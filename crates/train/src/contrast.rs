@@ -174,15 +174,16 @@ impl FeatureQueue {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    fn t(rows: &[[f32; 2]]) -> Tensor<2> {
+    /// Rows of two values as a tensor (the loss tests' hand cases; `crosspose` uses it too).
+    pub(crate) fn t(rows: &[[f32; 2]]) -> Tensor<2> {
         let v: Vec<f32> = rows.iter().flatten().copied().collect();
         Tensor::from_data(TensorData::new(v, [rows.len(), 2]), &Device::default())
     }
 
-    fn scalar(x: Tensor<1>) -> f64 {
+    pub(crate) fn scalar(x: Tensor<1>) -> f64 {
         x.into_data().convert::<f64>().try_into_vec::<f64>().unwrap()[0]
     }
 

@@ -137,16 +137,8 @@ pub fn simsiam_loss(head: &SimSiamHead, first: Tensor<2>, second: Tensor<2>) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::contrast::tests::{scalar, t};
     use burn::tensor::TensorData;
-
-    fn t(rows: &[[f32; 2]]) -> Tensor<2> {
-        let v: Vec<f32> = rows.iter().flatten().copied().collect();
-        Tensor::from_data(TensorData::new(v, [rows.len(), 2]), &Device::default())
-    }
-
-    fn scalar(x: Tensor<1>) -> f64 {
-        x.into_data().convert::<f64>().try_into_vec::<f64>().unwrap()[0]
-    }
 
     #[test]
     fn negative_cosine_on_hand_cases() {

@@ -353,13 +353,10 @@ pub fn train_until(
     // ℓ_f's projection and queue: from the checkpoint when resuming, else new (seeded).
     let feature = &config.feature;
     let (mut projection, mut queue) = if resumed_from.is_some() && feature.lambda > 0.0 {
-        let p = Projection::new(config.network.expansion, feature, &autodiff)
-            .try_load_file(files.projection())
-            .map_err(|e| TrainError::Config(format!("{}: {e:?}", files.projection().display())))?;
-        let opt = std::fs::read(files.projection_optimizer()).map_err(io(&files.projection_optimizer()))?;
-        projection_optimizer = projection_optimizer
-            .from_bytes(burn::tensor::Bytes::from_bytes_vec(opt))
-            .map_err(|e| TrainError::Config(format!("projection optimizer state: {e:?}")))?;
+        let fresh = Projection::new(config.network.expansion, feature, &autodiff);
+        let p;
+        (p, projection_optimizer) =
+            load_head(fresh, &files.projection(), projection_optimizer, &files.projection_optimizer())?;
         (p, FeatureQueue::load(&files.queue(), feature.queue, feature.dim, &autodiff)?)
     } else {
         autodiff.seed(config.seed.wrapping_add(0xF0));
@@ -369,13 +366,10 @@ pub fn train_until(
     let cross = &config.cross_pose;
     let face_dim = config.network.expansion - config.network.pose_features;
     let mut simsiam = if resumed_from.is_some() && cross.lambda > 0.0 {
-        let opt = std::fs::read(files.simsiam_optimizer()).map_err(io(&files.simsiam_optimizer()))?;
-        simsiam_optimizer = simsiam_optimizer
-            .from_bytes(burn::tensor::Bytes::from_bytes_vec(opt))
-            .map_err(|e| TrainError::Config(format!("SimSiam optimizer state: {e:?}")))?;
-        SimSiamHead::new(face_dim, cross, &autodiff)
-            .try_load_file(files.simsiam())
-            .map_err(|e| TrainError::Config(format!("{}: {e:?}", files.simsiam().display())))?
+        let fresh = SimSiamHead::new(face_dim, cross, &autodiff);
+        let head;
+        (head, simsiam_optimizer) = load_head(fresh, &files.simsiam(), simsiam_optimizer, &files.simsiam_optimizer())?;
+        head
     } else {
         autodiff.seed(config.seed.wrapping_add(0xC5));
         SimSiamHead::new(face_dim, cross, &autodiff)
@@ -518,27 +512,13 @@ pub fn train_until(
                 last = Some(entry);
             }
             if (step + 1) % config.checkpoint_every == 0 || step + 1 == config.steps || stopping {
+                // Before the encoder's checkpoint: a checkpoint always has these beside it.
                 if feature.lambda > 0.0 {
-                    // Before the encoder's checkpoint: a checkpoint always has these beside it.
-                    projection
-                        .clone()
-                        .save_file(files.projection())
-                        .map_err(|e| TrainError::Config(format!("{}: {e:?}", files.projection().display())))?;
-                    let opt = projection_optimizer
-                        .into_bytes()
-                        .map_err(|e| TrainError::Config(format!("projection optimizer state: {e:?}")))?;
-                    weights::write_atomically(&files.projection_optimizer(), &opt)?;
+                    save_head(&projection, &files.projection(), &projection_optimizer, &files.projection_optimizer())?;
                     queue.save(&files.queue())?;
                 }
                 if cross.lambda > 0.0 {
-                    simsiam
-                        .clone()
-                        .save_file(files.simsiam())
-                        .map_err(|e| TrainError::Config(format!("{}: {e:?}", files.simsiam().display())))?;
-                    let opt = simsiam_optimizer
-                        .into_bytes()
-                        .map_err(|e| TrainError::Config(format!("SimSiam optimizer state: {e:?}")))?;
-                    weights::write_atomically(&files.simsiam_optimizer(), &opt)?;
+                    save_head(&simsiam, &files.simsiam(), &simsiam_optimizer, &files.simsiam_optimizer())?;
                 }
                 save_checkpoint(&files, &net, config, &optimizer, step + 1)?;
             }
@@ -582,6 +562,36 @@ fn save_checkpoint(
     weights::write_atomically(&files.optimizer(), &opt)?;
     weights::write_atomically(&files.checkpoint(), &bytes)?;
     Ok(())
+}
+
+/// A training-only head (ℓ_f's projection, the SimSiam head) and its Adam, as a checkpoint
+/// keeps them: the module as a burnpack file, the optimizer state beside it.
+fn save_head<M: Module>(
+    head: &M,
+    path: &Path,
+    optimizer: &burn::optim::ModuleOptimizer,
+    optimizer_path: &Path,
+) -> Result<(), TrainError> {
+    head.clone().save_file(path).map_err(|e| TrainError::Config(format!("{}: {e:?}", path.display())))?;
+    let opt = optimizer.into_bytes().map_err(|e| TrainError::Config(format!("{}: {e:?}", optimizer_path.display())))?;
+    weights::write_atomically(optimizer_path, &opt)?;
+    Ok(())
+}
+
+/// What [`save_head`] wrote, into `fresh` (a head of the same shape) and `optimizer`.
+fn load_head<M: Module>(
+    fresh: M,
+    path: &Path,
+    optimizer: burn::optim::ModuleOptimizer,
+    optimizer_path: &Path,
+) -> Result<(M, burn::optim::ModuleOptimizer), TrainError> {
+    let head = fresh.try_load_file(path).map_err(|e| TrainError::Config(format!("{}: {e:?}", path.display())))?;
+    let bytes = std::fs::read(optimizer_path)
+        .map_err(|source| TrainError::Io { path: optimizer_path.to_path_buf(), source })?;
+    let optimizer = optimizer
+        .from_bytes(burn::tensor::Bytes::from_bytes_vec(bytes))
+        .map_err(|e| TrainError::Config(format!("{}: {e:?}", optimizer_path.display())))?;
+    Ok((head, optimizer))
 }
 
 fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<(), TrainError> {

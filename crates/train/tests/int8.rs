@@ -3,11 +3,12 @@
 //! bucket) as well as the fp32 network does, within 2 %; its calibration is refused for
 //! other weights and its absence is an error that names the file to make.
 
-use burn::tensor::{Device, Tensor, TensorData};
+mod common;
+
+use burn::tensor::Device;
 use facerecon_nn::quantize::Calibration;
 use facerecon_nn::{Compute, InferencePrecision};
 use facerecon_train::data::{Augment, SyntheticFaces};
-use facerecon_train::geometry::GeometryDecoder;
 use facerecon_vision::onnx::OnnxRuntimeConfig;
 
 #[test]
@@ -38,20 +39,10 @@ fn the_int8_encoder_places_landmarks_as_the_fp32_one_does() {
     let none = Augment { occluder: 0.0, blur: 0.0, noise: 0.0, jpeg: 0.0 };
     let faces = SyntheticFaces::new(&model, &config, none, 0x5EED_7E57).unwrap();
     let batch = faces.batch(0, 16, 3, None).unwrap();
-    let (n, k) = (batch.crops.len(), config.output_size());
-    let device = Device::default();
-    let geometry = GeometryDecoder::new(&model, &config, 50, &device);
-    let landmarks = |rows: Vec<f32>| {
-        let t = Tensor::<2>::from_data(TensorData::new(rows, [n, k]), &device);
-        geometry.landmark_pixels(t).into_data().try_into_vec::<f32>().unwrap()
-    };
-    let truth = landmarks(batch.targets.clone());
-    let rms = |rows: Vec<Vec<f32>>| {
-        let got = landmarks(rows.concat());
-        let sq: f32 = got.iter().zip(&truth).map(|(a, b)| (a - b) * (a - b)).sum();
-        (2.0 * sq / got.len() as f32).sqrt()
-    };
-    let (a, b) = (rms(fp32.encode_rows(&batch.crops).unwrap()), rms(int8.encode_rows(&batch.crops).unwrap()));
+    let n = batch.crops.len();
+    let score = common::LandmarkScore::new(&model, &config, &batch, &Device::default());
+    let (a, b) =
+        (score.rms(fp32.encode_rows(&batch.crops).unwrap()), score.rms(int8.encode_rows(&batch.crops).unwrap()));
     eprintln!("landmark RMS on {n} unseen crops: fp32 {a:.3} px, int8 {b:.3} px ({:+.2} %)", 100.0 * (b / a - 1.0));
     assert!(b <= 1.02 * a, "int8 {b:.3} px against fp32 {a:.3} px");
 

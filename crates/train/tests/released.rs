@@ -3,10 +3,11 @@
 //! closer to the truth than those of the untrained network, which predicts the mean face in
 //! front of the camera.
 
-use burn::tensor::{Device, Tensor, TensorData};
+mod common;
+
+use burn::tensor::Device;
 use facerecon_nn::{BurnEncoder, Encoder, EncoderNet, NetworkConfig};
 use facerecon_train::data::{Augment, SyntheticFaces};
-use facerecon_train::geometry::GeometryDecoder;
 
 #[test]
 fn the_released_encoder_places_landmarks_on_unseen_synthetic_faces() {
@@ -25,21 +26,9 @@ fn the_released_encoder_places_landmarks_on_unseen_synthetic_faces() {
     let none = Augment { occluder: 0.0, blur: 0.0, noise: 0.0, jpeg: 0.0 };
     let faces = SyntheticFaces::new(&model, &config, none, 0x5EED_7E57).unwrap();
     let batch = faces.batch(0, 8, 0, None).unwrap();
-    let n = batch.crops.len();
-    let k = config.output_size();
-    let geometry = GeometryDecoder::new(&model, &config, 50, &device);
-    let landmarks = |rows: Vec<f32>| {
-        let t = Tensor::<2>::from_data(TensorData::new(rows, [n, k]), &device);
-        geometry.landmark_pixels(t).into_data().try_into_vec::<f32>().unwrap()
-    };
-    let truth = landmarks(batch.targets.clone());
-    let rms = |rows: Vec<Vec<f32>>| {
-        let got = landmarks(rows.concat());
-        let sq: f32 = got.iter().zip(&truth).map(|(a, b)| (a - b) * (a - b)).sum();
-        (2.0 * sq / got.len() as f32).sqrt()
-    };
-    let trained = rms(released.encode_rows(&batch.crops).unwrap());
-    let start = rms(untrained.encode_rows(&batch.crops).unwrap());
+    let score = common::LandmarkScore::new(&model, &config, &batch, &device);
+    let trained = score.rms(released.encode_rows(&batch.crops).unwrap());
+    let start = score.rms(untrained.encode_rows(&batch.crops).unwrap());
     eprintln!("landmark RMS on 8 unseen faces: released {trained:.2} px, untrained {start:.2} px");
     assert!(trained < 12.0 && trained < 0.3 * start, "released {trained:.2} px, untrained {start:.2} px");
 }
