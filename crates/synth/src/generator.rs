@@ -131,14 +131,7 @@ impl<'m> Generator<'m> {
         let shape = model.shape(&identity, &expression, Extent::Face).map_err(SynthError::model)?;
         let rotation = euler.axis_angle();
         let lm_idx = model.landmarks();
-        let lm_model: Vec<[f32; 3]> = lm_idx.iter().map(|&i| shape[i as usize]).collect();
-        let mut camera = Camera { aspect: width as f32 / height as f32, ..Camera::default() };
-        let translation = place_face(&lm_model, rotation, &camera, width, height, [cx, cy], side);
-        let depth = -translation[2];
-        // Tight clip planes around the head: depth precision at any distance (x, y and the
-        // pixel mapping do not depend on them).
-        camera.near = (depth - 600.0).max(1.0);
-        camera.far = depth + 600.0;
+        let (camera, translation) = frame_face(model, &shape, rotation, width, height, [cx, cy], side);
 
         // --- render ------------------------------------------------------------------------
         let coefficients = Coefficients { identity, expression, albedo, light, rotation, translation };
@@ -259,13 +252,8 @@ impl Generator<'_> {
         }
         let model = self.model;
         let shape = model.shape(&c.identity, &c.expression, Extent::Face).map_err(SynthError::model)?;
-        let lm: Vec<[f32; 3]> = model.landmarks().iter().map(|&i| shape[i as usize]).collect();
-        let mut camera = Camera { aspect: 1.0, ..Camera::default() };
         let centre = 0.5 * side as f32 - 0.5;
-        let translation = place_face(&lm, rotation, &camera, side, side, [centre, centre], side as f32);
-        let depth = -translation[2];
-        camera.near = (depth - 600.0).max(1.0);
-        camera.far = depth + 600.0;
+        let (camera, translation) = frame_face(model, &shape, rotation, side, side, [centre, centre], side as f32);
         let posed = Coefficients { rotation, translation, ..c.clone() };
         let colors = PartColors::random(rng);
         let (frame, _) = self.render(&posed, &colors, camera, side, side)?;
@@ -278,6 +266,29 @@ impl Generator<'_> {
         }
         Ok(image)
     }
+}
+
+/// The camera and translation that frame a face of face-area `shape` under `rotation` in a
+/// `w`×`h` image: its landmarks' crop centred on `centre`, `side` px (via [`place_face`]),
+/// with tight clip planes around the head (depth precision at any distance; x, y and the
+/// pixel mapping do not depend on them). Samples and re-renderings share it, so both are
+/// framed alike.
+fn frame_face(
+    model: &MorphableModel,
+    shape: &[[f32; 3]],
+    rotation: [f32; 3],
+    w: u32,
+    h: u32,
+    centre: [f32; 2],
+    side: f32,
+) -> (Camera, [f32; 3]) {
+    let lm: Vec<[f32; 3]> = model.landmarks().iter().map(|&i| shape[i as usize]).collect();
+    let mut camera = Camera { aspect: w as f32 / h as f32, ..Camera::default() };
+    let translation = place_face(&lm, rotation, &camera, w, h, centre, side);
+    let depth = -translation[2];
+    camera.near = (depth - 600.0).max(1.0);
+    camera.far = depth + 600.0;
+    (camera, translation)
 }
 
 /// Translation that puts the landmarks' centroid on the ray through pixel `centre` at the
