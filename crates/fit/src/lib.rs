@@ -13,6 +13,8 @@
 //!   primitive, each checked against finite differences.
 //! * [`photometric`] — the coarse fit: every coefficient by Adam through the decoder.
 //! * [`levenberg`] — the same coarse fit by Levenberg–Marquardt (the measured alternative).
+//! * [`training`] — the coarse fit's photometric term at one prediction, with its gradient:
+//!   the encoder's self-supervised training loss (DESIGN §7).
 //! * [`priors`] — priors on the decoded face itself (the albedo range of Eq. 2.39).
 //! * [`displacement`] — the displacement map after the coarse fit (thesis ch. 6).
 //! * [`landmark_fit`] — pose, then identity and expression by regularised least squares,
@@ -30,6 +32,7 @@ pub mod levenberg;
 pub mod photometric;
 pub mod priors;
 pub mod subset;
+pub mod training;
 
 pub use error::FitError;
 pub use landmark_fit::{LandmarkFit, LandmarkFitSettings, LandmarkFitter};

@@ -7,18 +7,21 @@
 //! * [`geometry`] — the decoder's geometry (shape, pose, crop projection) in burn tensors;
 //! * [`run`] — the loop (Adam, warm-up and piecewise-constant decay, progressive buckets),
 //!   checkpoints that resume, the JSON-lines log;
+//! * [`photos`] — stage 2: photo faces, their self-supervised loss (the fitting crate's
+//!   photometric term with its exact gradient, the landmark term, the batch KL);
 //! * [`plot`] — the loss plot (PNG);
 //! * [`calibrate`] — activation ranges of trained weights for the int8 CPU encoder.
 //!
 //! Built: stage 1 (supervised on synthetic faces) with the resolution-consistency losses ℓ_s
-//! and ℓ_f and the cross-pose branch. Not yet: the self-supervised photometric stage on
-//! photos (see the encoder issue's notes).
+//! and ℓ_f and the cross-pose branch, and stage 2 (self-supervised on a folder of photos,
+//! mixed into stage 1's steps; decision 0905). No photos to train on ship with the project.
 
 pub mod calibrate;
 pub mod contrast;
 pub mod crosspose;
 pub mod data;
 pub mod geometry;
+pub mod photos;
 pub mod plot;
 pub mod run;
 

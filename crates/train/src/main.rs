@@ -1,8 +1,11 @@
-//! `facerecon-train`: trains the encoder on synthetic faces (stage 1 of DESIGN §7).
+//! `facerecon-train`: trains the encoder on synthetic faces (stage 1 of DESIGN §7), and with
+//! `--photos DIR` on photos too (stage 2: the self-supervised loss on each step's photo faces).
 //!
 //! ```text
 //! facerecon-train --preset tiny --steps 200 --out runs/tiny     # minutes on 2 CPU cores
 //! facerecon-train --preset full --steps 100000 --out runs/v1    # the real network (GPU)
+//! facerecon-train --preset full --steps 120000 --init-weights runs/v1/encoder-f16.safetensors \
+//!     --lr 1e-5 --photos /data/my-photos --out runs/v1-photos   # stage 2 from stage 1
 //! ```
 //!
 //! Running it again with the same folder and settings resumes from the last checkpoint.
@@ -25,7 +28,11 @@ enum Preset {
 }
 
 #[derive(Parser, Debug)]
-#[command(name = "facerecon-train", about = "Train the facerecon encoder on synthetic faces", version)]
+#[command(
+    name = "facerecon-train",
+    about = "Train the facerecon encoder on synthetic faces (and photos: --photos)",
+    version
+)]
 struct Args {
     #[arg(long, value_enum, default_value = "tiny")]
     preset: Preset,
@@ -49,6 +56,14 @@ struct Args {
     /// λ_cf of the cross-pose branch (0: off, the ablation DESIGN §7 compares) [default: 1].
     #[arg(long)]
     lambda_cf: Option<f64>,
+    /// Stage 2: a folder of photos you may train on (searched recursively; a `NAME.pts`
+    /// beside a photo gives its 68 landmarks, otherwise the front end finds every face).
+    /// Their self-supervised loss joins every step. faces-300w is for evaluation only.
+    #[arg(long)]
+    photos: Option<PathBuf>,
+    /// Photo faces per step (default: the batch size).
+    #[arg(long)]
+    photos_per_batch: Option<usize>,
     /// Face model file (default: ICT-FaceKit, built from the shared folder).
     #[arg(long)]
     model: Option<PathBuf>,
@@ -126,6 +141,13 @@ fn run(args: Args) -> anyhow::Result<()> {
         config.lr_peak = lr;
         config.lr_start = config.lr_start.min(lr);
     }
+    if let Some(dir) = &args.photos {
+        let per_batch = args.photos_per_batch.unwrap_or(config.batch_size);
+        config.photos = Some(facerecon_train::photos::PhotoStage::design(dir.clone(), per_batch));
+        eprintln!("finding the faces of the photos in {} …", dir.display());
+    } else {
+        anyhow::ensure!(args.photos_per_batch.is_none(), "--photos-per-batch needs --photos");
+    }
     let device = args.device.device()?;
     eprintln!(
         "facerecon-train: {:?} network, {} steps of {} faces, on {device:?}, into {}",
@@ -152,7 +174,25 @@ fn run(args: Args) -> anyhow::Result<()> {
             e.seconds,
             e.wait_seconds
         );
+        if e.photo_l1 != 0.0 || e.photometric != 0.0 {
+            eprintln!(
+                "             photos: ph {:.4} (colour L1 {:.4}, {} left out)  lms {:.3} px  KL {:.2}",
+                e.photometric, e.photo_l1, e.photo_skipped, e.photo_landmarks, e.kl
+            );
+        }
     })?;
+    if let Some(r) = &summary.photos {
+        eprintln!(
+            "photos: {} faces from {} photos ({} without a face, {} unreadable)",
+            r.faces,
+            r.photos,
+            r.without_face,
+            r.errors.len()
+        );
+        for (path, e) in r.errors.iter().take(20) {
+            eprintln!("  unreadable {}: {e}", path.display());
+        }
+    }
     if let Some(from) = summary.resumed_from {
         eprintln!("resumed from step {from}");
     }
@@ -166,6 +206,10 @@ fn run(args: Args) -> anyhow::Result<()> {
         "last": summary.last,
         "weights": summary.weights,
         "plot": summary.plot,
+        "photos": summary.photos.as_ref().map(|r| serde_json::json!({
+            "photos": r.photos, "faces": r.faces, "without_face": r.without_face,
+            "unreadable": r.errors.iter().map(|(p, e)| serde_json::json!({"path": p, "error": e})).collect::<Vec<_>>(),
+        })),
     });
     if args.json {
         println!("{}", serde_json::to_string_pretty(&report)?);

@@ -43,13 +43,15 @@ pub fn loss_plot(entries: &[LogEntry], path: &Path) -> Result<(), TrainError> {
     let (w, h) = (960u32, 540u32);
     let mut buf = vec![0u8; (w * h * 3) as usize];
     type Series = (&'static str, fn(&LogEntry) -> f64, RGBColor);
-    let series: [Series; 6] = [
+    let series: [Series; 8] = [
         ("total", |e| e.total, BLACK),
         ("coefficients", |e| e.coef, RGBColor(31, 119, 180)),
         ("shape (per 5 mm)", |e| e.shape, RGBColor(44, 160, 44)),
         ("landmarks (per 4 px)", |e| e.landmarks, RGBColor(214, 39, 40)),
         ("resolution ℓs", |e| e.resolution, RGBColor(148, 103, 189)),
         ("features ℓf", |e| e.feature, RGBColor(255, 127, 14)),
+        ("photos: photometric", |e| e.photometric, RGBColor(23, 190, 207)),
+        ("photos: landmarks (L1 px)", |e| e.photo_landmarks, RGBColor(140, 86, 75)),
     ];
     let positive = |v: f64| v.is_finite() && v > 0.0;
     let values = entries.iter().flat_map(|e| series.iter().map(move |s| (s.1)(e))).filter(|&v| positive(v));

@@ -15,6 +15,12 @@
 //! * `ℓ_cf` (Eq. 4.1–4.2): SimSiam between each face and a re-rendering of the face the
 //!   network predicts for it under a random pose, on the face subspace, λ_cf = 1
 //!   ([`crate::crosspose`]); its head likewise.
+//!
+//! Stage 2 (with [`TrainConfig::photos`]): each step also takes a batch of photo faces and
+//! adds their self-supervised loss (Eq. 3.4, Table 3.2: `λph·ℓph + λlms·ℓlms +
+//! λstats(λid·KL_id + λtex·KL_tex) + λrange·ℓrange`, [`crate::photos`]). The synthetic
+//! terms stay: the photos have no ground truth, and the faces rendered by the engine keep
+//! anchoring identity and pose while the photos close the domain gap.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -32,6 +38,7 @@ use crate::contrast::{FeatureLoss, FeatureQueue, Projection, info_nce};
 use crate::crosspose::{CrossPose, SimSiamHead, simsiam_loss};
 use crate::data::{Augment, SyntheticFaces};
 use crate::geometry::GeometryDecoder;
+use crate::photos::{PhotoSet, PhotoStage, ScanReport, batch_kl, photometric_loss};
 
 /// Everything a run is made of; written to `run.json` in the run folder.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -72,6 +79,10 @@ pub struct TrainConfig {
     /// comes back). Its optimizer state is not carried: Adam's moments start again.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub init_weights: Option<PathBuf>,
+    /// Stage 2: photo faces and their self-supervised loss in every step (`None`: the
+    /// synthetic stage alone).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub photos: Option<PhotoStage>,
 }
 
 impl TrainConfig {
@@ -99,6 +110,7 @@ impl TrainConfig {
             log_every: 10,
             checkpoint_every: 500,
             init_weights: None,
+            photos: None,
         }
     }
 
@@ -133,6 +145,9 @@ impl TrainConfig {
         }
         self.feature.validate()?;
         self.cross_pose.validate()?;
+        if let Some(p) = &self.photos {
+            p.validate()?;
+        }
         if self.distinct_faces == Some(0) {
             return bad("distinct faces must be ≥ 1".into());
         }
@@ -181,6 +196,21 @@ pub struct LogEntry {
     /// Time this step waited for its batch (rendering slower than training shows here).
     #[serde(default)]
     pub wait_seconds: f64,
+    /// Stage 2, on the photo faces: `λph·ℓph + λrange·ℓrange` (batch mean; 0 without photos).
+    #[serde(default)]
+    pub photometric: f64,
+    /// Their landmark term `ℓlms` (Eq. 2.34: mean L1 per landmark, crop pixels).
+    #[serde(default)]
+    pub photo_landmarks: f64,
+    /// Their batch KL, `λid·KL_id + λtex·KL_tex` (before λstats).
+    #[serde(default)]
+    pub kl: f64,
+    /// Mean absolute colour difference per channel (0–1) inside the compared region.
+    #[serde(default)]
+    pub photo_l1: f64,
+    /// Photo faces left out of the step's photometric term (the prediction left the view).
+    #[serde(default)]
+    pub photo_skipped: u64,
 }
 
 /// What a finished (or stopped) run leaves.
@@ -192,6 +222,8 @@ pub struct RunSummary {
     pub last: Option<LogEntry>,
     pub weights: PathBuf,
     pub plot: Option<PathBuf>,
+    /// What the photo folder held (stage 2 only).
+    pub photos: Option<ScanReport>,
 }
 
 /// Each coefficient's natural unit for `ℓ_coef`: 1 σ for the PCA blocks, 0.25 for
@@ -376,6 +408,18 @@ pub fn train_until(
     };
 
     let data = SyntheticFaces::new(model, &config.network, config.augment.clone(), config.seed)?;
+    let (photo_set, photo_report) = match &config.photos {
+        Some(stage) => {
+            // Only photos without a `.pts` file need the front end (a machine without the
+            // landmark model can still train on photos that have one).
+            let landmarks = Path::new(facerecon_vision::landmarks::DEFAULT_MODEL_PATH);
+            let front = facerecon_vision::pipeline::FrontEnd::load_standard(landmarks)
+                .map_err(|e| format!("the front end cannot be loaded ({e})"));
+            let (set, report) = PhotoSet::scan(&stage.dir, front.as_ref().map_err(String::as_str))?;
+            (Some(set), Some(report))
+        }
+        None => (None, None),
+    };
     let geometry = GeometryDecoder::new(model, &config.network, config.shape_vertices, &autodiff);
     let units = Tensor::<2>::from_data(
         TensorData::new(loss_units(&config.network), [1, config.network.output_size()]),
@@ -391,11 +435,15 @@ pub fn train_until(
     // network trains on the current one (on a GPU the two then overlap).
     let net = std::thread::scope(|scope| -> Result<EncoderNet, TrainError> {
         let (tx, rx) = std::sync::mpsc::sync_channel(2);
-        let data = &data;
+        let (data, photo_set) = (&data, &photo_set);
         scope.spawn(move || {
             for step in start..config.steps {
                 let batch = data.batch(step, config.batch_size, config.lowest_bucket(step), config.distinct_faces);
-                if tx.send(batch).is_err() {
+                let photos = match (photo_set, &config.photos) {
+                    (Some(set), Some(stage)) => set.batch(step, stage.per_batch, config.seed).map(Some),
+                    _ => Ok(None),
+                };
+                if tx.send(batch.and_then(|b| photos.map(|p| (b, p)))).is_err() {
                     break;
                 }
             }
@@ -404,7 +452,8 @@ pub fn train_until(
         let mut interval_start = start;
         for step in start..config.steps {
             let t0 = Instant::now();
-            let batch = rx.recv().map_err(|_| TrainError::Data("the batch producer stopped".into()))??;
+            let (batch, photo_batch) =
+                rx.recv().map_err(|_| TrainError::Data("the batch producer stopped".into()))??;
             let wait_seconds = t0.elapsed().as_secs_f64();
             let n = batch.crops.len();
             let (images, buckets) = batch.crops.tensors(&autodiff);
@@ -455,6 +504,25 @@ pub fn train_until(
                 cross_loss = simsiam_loss(&simsiam, out.face_features.narrow(0, 0, faces), second);
                 total = total + cross_loss.clone() * cross.lambda;
             }
+            let zero = || Tensor::<1>::zeros([1], &autodiff);
+            let (mut photometric, mut photo_landmarks, mut kl) = (zero(), zero(), zero());
+            let mut photo_stats = crate::photos::PhotometricStats::default();
+            if let (Some(pb), Some(stage)) = (&photo_batch, &config.photos) {
+                let m = pb.crops.len();
+                let (images, buckets) = pb.crops.tensors(&autodiff);
+                let rows = net.forward(images, buckets, &config.network).coefficients;
+                (photometric, photo_stats) = photometric_loss(model, &stage.term(), rows.clone(), pb, &autodiff)?;
+                let target = Tensor::<3>::from_data(TensorData::new(pb.landmarks.clone(), [m, 68, 2]), &autodiff);
+                photo_landmarks = (geometry.landmark_pixels(rows.clone()) - target).abs().sum_dim(2).mean();
+                let layout = config.network.layout;
+                let albedo_at = layout.identity + layout.expression;
+                kl = batch_kl(rows.clone().narrow(1, 0, layout.identity)) * stage.lambda_id
+                    + batch_kl(rows.narrow(1, albedo_at, layout.albedo)) * stage.lambda_tex;
+                total = total
+                    + photometric.clone()
+                    + photo_landmarks.clone() * stage.lambda_lms
+                    + kl.clone() * stage.lambda_stats;
+            }
             let stopping =
                 stop.after_step.is_some_and(|s| step + 1 >= s) || stop.after.is_some_and(|d| started.elapsed() >= d);
             let logged = (step + 1) % config.log_every == 0 || step + 1 == config.steps || stopping || step == start;
@@ -462,7 +530,19 @@ pub fn train_until(
             // every read-back waits for the queue to drain.
             let terms = logged.then(|| {
                 Tensor::cat(
-                    vec![total.clone(), coef, shape, landmarks, resolution, lmk_sq, feature_loss, cross_loss],
+                    vec![
+                        total.clone(),
+                        coef,
+                        shape,
+                        landmarks,
+                        resolution,
+                        lmk_sq,
+                        feature_loss,
+                        cross_loss,
+                        photometric,
+                        photo_landmarks,
+                        kl,
+                    ],
                     0,
                 )
             });
@@ -500,6 +580,11 @@ pub fn train_until(
                     landmark_rms_px: v(5).sqrt(),
                     seconds,
                     wait_seconds,
+                    photometric: v(8),
+                    photo_landmarks: v(9),
+                    kl: v(10),
+                    photo_l1: if photo_batch.is_some() { photo_stats.l1 } else { 0.0 },
+                    photo_skipped: photo_stats.skipped as u64,
                 };
                 if !entry.total.is_finite() {
                     return Err(TrainError::Diverged { step: step + 1, loss: entry.total });
@@ -540,7 +625,7 @@ pub fn train_until(
     weights::write_atomically(&files.weights(), &bytes)?;
     let entries = read_log(&files.log())?;
     let plot = crate::plot::loss_plot(&entries, &files.plot()).ok().map(|_| files.plot());
-    Ok(RunSummary { steps_done, resumed_from, first, last, weights: files.weights(), plot })
+    Ok(RunSummary { steps_done, resumed_from, first, last, weights: files.weights(), plot, photos: photo_report })
 }
 
 fn save_checkpoint(
