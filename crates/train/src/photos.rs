@@ -246,7 +246,7 @@ fn splitmix(seed: u64, i: u64) -> u64 {
 /// What [`photometric_loss`] measured, for the log.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct PhotometricStats {
-    /// Mean absolute colour difference per channel (0–1), over the faces evaluated.
+    /// Mean absolute colour difference per channel (0–1), over the faces evaluated (0: none).
     pub l1: f64,
     /// Faces left out: the prediction left the camera's view or covered no pixel.
     pub skipped: usize,
@@ -301,8 +301,9 @@ pub fn photometric_loss(
     let g = Tensor::<2>::from_data(TensorData::new(gradient, [n, k]), device);
     let linear = (rows * g).sum();
     let value = Tensor::<1>::from_data(TensorData::new(vec![(loss / n as f64) as f32], [1]), device);
-    let stats =
-        PhotometricStats { l1: if evaluated > 0 { l1 / evaluated as f64 } else { f64::NAN }, skipped: n - evaluated };
+    // 0 when every face was left out (a log line cannot hold a NaN; `skipped` says why).
+    let l1 = if evaluated > 0 { l1 / evaluated as f64 } else { 0.0 };
+    let stats = PhotometricStats { l1, skipped: n - evaluated };
     Ok((linear.clone() - linear.detach() + value, stats))
 }
 

@@ -151,9 +151,18 @@ fn burn_gets_the_photometric_terms_gradient() {
             "{what}: burn's gradient {analytic} vs finite difference {numeric}"
         );
     }
-    // Nothing reaches rows the term does not depend on: beyond the shape block, only
-    // albedo, light and pose.
     assert!(g.iter().all(|v| v.is_finite()));
+
+    // A prediction behind the camera (the first face's translation z) is left out of the
+    // step: no gradient reaches its row; the other face still counts.
+    let mut behind = flat.clone();
+    behind[k - 1] = 500.0;
+    let rows = Tensor::<2>::from_data(TensorData::new(behind, [2, k]), &device).require_grad();
+    let (loss, stats) = photometric_loss(model, &stage.term(), rows.clone(), &batch, &device).unwrap();
+    assert_eq!(stats.skipped, 1);
+    assert!(stats.l1 > 0.0, "the other face still counts: {stats:?}");
+    let g = rows.grad(&loss.backward()).unwrap().into_data().try_into_vec::<f32>().unwrap();
+    assert!(g[..k].iter().all(|v| *v == 0.0) && g[k..].iter().any(|v| *v != 0.0));
 }
 
 /// Tiny runs with photos: with stage 2's weights; with the landmark term alone, ten times
