@@ -155,24 +155,24 @@ impl PhotoSet {
         self.faces.is_empty()
     }
 
-    /// Batch `step`: `size` faces drawn by `seed` and the step (the same step always gives
-    /// the same faces, so a resumed run sees what it would have seen).
+    /// Batch `step`: `size` faces drawn by `seed` and the step (while the folder is
+    /// unchanged, the same step gives the same faces, so a resumed run sees what it would
+    /// have seen). A photo that can no longer be read (moved, rewritten) gives its slot to
+    /// the next face of the set; only when eight in a row fail does the batch fail.
     pub fn batch(&self, step: u64, size: usize, seed: u64) -> Result<PhotoBatch, TrainError> {
-        let picked: Vec<&PhotoFace> = (0..size as u64)
+        let n = self.len() as u64;
+        let crops: Vec<(crop::Crop, Vec<[f32; 2]>)> = (0..size as u64)
+            .into_par_iter()
             .map(|i| {
-                &self.faces
-                    [(splitmix(seed ^ 0x9E37_79B9_7F4A_7C15, step * size as u64 + i) % self.len() as u64) as usize]
-            })
-            .collect();
-        let crops: Vec<(crop::Crop, Vec<[f32; 2]>)> = picked
-            .par_iter()
-            .map(|f| {
-                let image = read_photo(&f.path, &self.limits)?;
-                let bbox = FaceBox::of_points(f.landmarks.iter().copied())
-                    .ok_or_else(|| format!("{}: landmarks span no area", f.path.display()))?;
-                let c = crop::crop_face(&image, &bbox);
-                let lm = f.landmarks.iter().map(|p| c.transform.to_crop(*p)).collect();
-                Ok((c, lm))
+                let first = splitmix(seed ^ 0x9E37_79B9_7F4A_7C15, step * size as u64 + i) % n;
+                let mut last_error = String::new();
+                for k in 0..8.min(n) {
+                    match self.crop((first + k) % n) {
+                        Ok(c) => return Ok(c),
+                        Err(e) => last_error = e,
+                    }
+                }
+                Err(last_error)
             })
             .collect::<Result<_, String>>()
             .map_err(TrainError::Data)?;
@@ -186,18 +186,33 @@ impl PhotoSet {
         }
         Ok(PhotoBatch { crops: batch, images, landmarks })
     }
+
+    /// Face `index`'s crop from its photo, and its landmarks in crop pixels.
+    fn crop(&self, index: u64) -> Result<(crop::Crop, Vec<[f32; 2]>), String> {
+        let f = &self.faces[index as usize];
+        let image = read_photo(&f.path, &self.limits)?;
+        let bbox = FaceBox::of_points(f.landmarks.iter().copied())
+            .ok_or_else(|| format!("{}: landmarks span no area", f.path.display()))?;
+        let c = crop::crop_face(&image, &bbox);
+        let lm = f.landmarks.iter().map(|p| c.transform.to_crop(*p)).collect();
+        Ok((c, lm))
+    }
 }
 
 fn collect_photos(dir: &Path, out: &mut Vec<PathBuf>) -> Result<(), TrainError> {
     let io = |e| TrainError::Io { path: dir.to_path_buf(), source: e };
     for entry in std::fs::read_dir(dir).map_err(io)? {
-        let path = entry.map_err(io)?.path();
-        if path.is_dir() {
+        let entry = entry.map_err(io)?;
+        let path = entry.path();
+        // Symbolic links to folders are not followed (a link cycle would never end).
+        let kind = entry.file_type().map_err(io)?;
+        if kind.is_dir() {
             collect_photos(&path, out)?;
-        } else if path
-            .extension()
-            .and_then(|e| e.to_str())
-            .is_some_and(|e| ["jpg", "jpeg", "png"].contains(&e.to_ascii_lowercase().as_str()))
+        } else if (kind.is_file() || path.is_file())
+            && path
+                .extension()
+                .and_then(|e| e.to_str())
+                .is_some_and(|e| ["jpg", "jpeg", "png"].contains(&e.to_ascii_lowercase().as_str()))
         {
             out.push(path);
         }

@@ -583,7 +583,7 @@ pub fn train_until(
                     photometric: v(8),
                     photo_landmarks: v(9),
                     kl: v(10),
-                    photo_l1: if photo_batch.is_some() { photo_stats.l1 } else { 0.0 },
+                    photo_l1: photo_stats.l1,
                     photo_skipped: photo_stats.skipped as u64,
                 };
                 if !entry.total.is_finite() {

@@ -222,3 +222,20 @@ fn the_released_encoder_agrees_with_the_photo_batchs_landmarks() {
     eprintln!("released encoder on 8 photo crops: {l1:.2} px L1 per landmark");
     assert!(l1 < 8.0, "{l1:.2} px L1 per landmark");
 }
+
+/// A photo removed after the scan gives its slot to another face; a batch fails only when
+/// no photo can be read.
+#[test]
+fn a_photo_gone_after_the_scan_does_not_stop_the_batch() {
+    let dir = tempdir("gone");
+    write_photos(&dir, 3, 6);
+    let (set, _) = PhotoSet::scan(&dir, Ok(&front())).unwrap();
+    std::fs::remove_file(dir.join("001.png")).unwrap();
+    let batch = set.batch(0, 6, 1).unwrap();
+    assert_eq!(batch.crops.len(), 6);
+    for f in ["000.png", "002.png"] {
+        std::fs::write(dir.join(f), b"rewritten, not an image").unwrap();
+    }
+    let err = set.batch(1, 2, 1).err().expect("nothing readable");
+    assert!(err.to_string().contains(".png"), "{err}");
+}
