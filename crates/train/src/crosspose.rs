@@ -31,13 +31,19 @@ pub struct CrossPose {
     pub predictor_hidden: usize,
     /// Yaw of the re-renderings: uniform in ±this many degrees.
     pub yaw_max_deg: f32,
+    /// Before this step (counted as the schedule counts, so a continuation from step 7,257
+    /// names a later one), ℓ_cf trains the head alone: the encoder's features reach it
+    /// detached. A new head sends noise into the encoder at first (decision 0904); this lets
+    /// it learn before it does. 0: from the start.
+    #[serde(default)]
+    pub head_only_until: u64,
 }
 
 impl CrossPose {
     /// DESIGN §7: projector 1536-1536-1536 with batch norm, predictor 384-1536, λ_cf 1;
     /// poses up to ±90° yaw as in stage 1's faces.
     pub fn design() -> Self {
-        Self { lambda: 1.0, projector: 1536, predictor_hidden: 384, yaw_max_deg: 90.0 }
+        Self { lambda: 1.0, projector: 1536, predictor_hidden: 384, yaw_max_deg: 90.0, head_only_until: 0 }
     }
 
     /// Off: what runs written before the branch existed read as.

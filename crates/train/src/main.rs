@@ -64,6 +64,10 @@ struct Args {
     /// Photo faces per step (default: the batch size).
     #[arg(long)]
     photos_per_batch: Option<usize>,
+    /// Before this step, the cross-pose branch trains its head alone (the encoder gets no
+    /// gradient from ℓ_cf yet); counted as the schedule counts [default: 0].
+    #[arg(long)]
+    cross_pose_head_until: Option<u64>,
     /// Face model file (default: ICT-FaceKit, built from the shared folder).
     #[arg(long)]
     model: Option<PathBuf>,
@@ -136,6 +140,9 @@ fn run(args: Args) -> anyhow::Result<()> {
     }
     if let Some(l) = args.lambda_cf {
         config.cross_pose.lambda = l;
+    }
+    if let Some(s) = args.cross_pose_head_until {
+        config.cross_pose.head_only_until = s;
     }
     if let Some(lr) = args.lr {
         config.lr_peak = lr;

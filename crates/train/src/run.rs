@@ -501,7 +501,11 @@ pub fn train_until(
                 let views = data.rerender(&rows, step * config.batch_size as u64, cross)?;
                 let (view_images, view_buckets) = views.tensors(&autodiff);
                 let second = net.forward(view_images, view_buckets, &config.network).face_features;
-                cross_loss = simsiam_loss(&simsiam, out.face_features.narrow(0, 0, faces), second);
+                let first = out.face_features.clone().narrow(0, 0, faces);
+                // The head's warm-up: the encoder gets no gradient from ℓ_cf yet.
+                let (first, second) =
+                    if step < cross.head_only_until { (first.detach(), second.detach()) } else { (first, second) };
+                cross_loss = simsiam_loss(&simsiam, first, second);
                 total = total + cross_loss.clone() * cross.lambda;
             }
             let zero = || Tensor::<1>::zeros([1], &autodiff);

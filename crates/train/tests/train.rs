@@ -119,3 +119,43 @@ fn a_short_tiny_run_learns_and_a_resumed_run_matches_an_uninterrupted_one() {
     let _ = std::fs::remove_dir_all(&continued);
     let _ = std::fs::remove_file(&at12);
 }
+
+/// The cross-pose head's warm-up (`head_only_until`): while it lasts, ℓ_cf trains the head
+/// and sends nothing into the encoder. Three 3-step tiny runs on the same batches: without
+/// the branch, with it in warm-up, and with it joined. The encoder of the warm-up run must
+/// compute what the run without the branch computes; the joined one must not.
+#[test]
+fn the_cross_pose_heads_warm_up_leaves_the_encoder_alone() {
+    let model = model();
+    let device = Device::default();
+    let run = |name: &str, lambda: f64, head_only_until: u64| {
+        let mut config = TrainConfig::tiny(NetworkConfig::tiny(model).unwrap(), 3);
+        config.batch_size = 4;
+        config.feature.lambda = 0.0;
+        config.cross_pose.lambda = lambda;
+        config.cross_pose.head_only_until = head_only_until;
+        let dir = tempdir(name);
+        train(model, &config, &dir, &device, |_| {}).unwrap();
+        let bytes = std::fs::read(dir.join("checkpoint.safetensors")).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        (config, bytes)
+    };
+    let (config, off) = run("xp-off", 0.0, 0);
+    let (_, warm) = run("xp-warm", 1.0, 100);
+    let (_, joined) = run("xp-joined", 1.0, 0);
+    // Each encoder on one batch, in training mode (batch statistics: the second views'
+    // forward passes moved the running statistics, which are not what is compared).
+    let autodiff = device.clone().autodiff();
+    let faces = facerecon_train::data::SyntheticFaces::new(model, &config.network, config.augment.clone(), 5).unwrap();
+    let batch = faces.batch(0, 4, 0, None).unwrap();
+    let rows = |bytes: &[u8]| {
+        let (_, net, _) = facerecon_nn::weights::from_bytes_with_metadata(bytes, &autodiff).unwrap();
+        let (images, buckets) = batch.crops.tensors(&autodiff);
+        net.forward(images, buckets, &config.network).coefficients.into_data().try_into_vec::<f32>().unwrap()
+    };
+    let (a, b, c) = (rows(&off), rows(&warm), rows(&joined));
+    let gap = |x: &[f32], y: &[f32]| x.iter().zip(y).map(|(p, q)| (p - q).abs()).fold(0.0f32, f32::max);
+    let (warm_gap, joined_gap) = (gap(&a, &b), gap(&a, &c));
+    eprintln!("largest output difference from the run without the branch: warm-up {warm_gap:e}, joined {joined_gap:e}");
+    assert!(warm_gap < 1e-4 && joined_gap > 100.0 * warm_gap.max(1e-6), "warm-up {warm_gap}, joined {joined_gap}");
+}
