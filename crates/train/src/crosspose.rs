@@ -37,13 +37,29 @@ pub struct CrossPose {
     /// it learn before it does. 0: from the start.
     #[serde(default)]
     pub head_only_until: u64,
+    /// The head's learning rate as a multiple of the encoder's: a new head continuing
+    /// trained weights at their small final rate barely moves (ℓ_cf −0.01 → −0.04 in 100
+    /// steps at 1e-5; docs/bench/cross-pose-200-steps).
+    #[serde(default = "one")]
+    pub head_lr_scale: f64,
+}
+
+fn one() -> f64 {
+    1.0
 }
 
 impl CrossPose {
     /// DESIGN §7: projector 1536-1536-1536 with batch norm, predictor 384-1536, λ_cf 1;
     /// poses up to ±90° yaw as in stage 1's faces.
     pub fn design() -> Self {
-        Self { lambda: 1.0, projector: 1536, predictor_hidden: 384, yaw_max_deg: 90.0, head_only_until: 0 }
+        Self {
+            lambda: 1.0,
+            projector: 1536,
+            predictor_hidden: 384,
+            yaw_max_deg: 90.0,
+            head_only_until: 0,
+            head_lr_scale: 1.0,
+        }
     }
 
     /// Off: what runs written before the branch existed read as.
@@ -56,7 +72,9 @@ impl CrossPose {
             && self.lambda.is_finite()
             && (1..=8192).contains(&self.projector)
             && (1..=8192).contains(&self.predictor_hidden)
-            && (0.0..=180.0).contains(&self.yaw_max_deg);
+            && (0.0..=180.0).contains(&self.yaw_max_deg)
+            && self.head_lr_scale > 0.0
+            && self.head_lr_scale <= 1e4;
         if ok { Ok(()) } else { Err(TrainError::Config(format!("cross-pose settings {self:?}"))) }
     }
 
@@ -173,6 +191,7 @@ mod tests {
         assert!(yaws.iter().all(|y| y.abs() <= 100.0), "{yaws:?}");
         assert!(yaws.iter().any(|&y| y > 60.0) && yaws.iter().any(|&y| y < -60.0));
         assert!(CrossPose { yaw_max_deg: -1.0, ..c.clone() }.validate().is_err());
+        assert!(CrossPose { head_lr_scale: 0.0, ..c.clone() }.validate().is_err());
         assert!(CrossPose { lambda: f64::NAN, ..c }.validate().is_err());
     }
 

@@ -68,6 +68,9 @@ struct Args {
     /// gradient from ℓ_cf yet); counted as the schedule counts [default: 0].
     #[arg(long)]
     cross_pose_head_until: Option<u64>,
+    /// The cross-pose head's learning rate as a multiple of the encoder's [default: 1].
+    #[arg(long)]
+    cross_pose_head_lr_scale: Option<f64>,
     /// Face model file (default: ICT-FaceKit, built from the shared folder).
     #[arg(long)]
     model: Option<PathBuf>,
@@ -143,6 +146,9 @@ fn run(args: Args) -> anyhow::Result<()> {
     }
     if let Some(s) = args.cross_pose_head_until {
         config.cross_pose.head_only_until = s;
+    }
+    if let Some(x) = args.cross_pose_head_lr_scale {
+        config.cross_pose.head_lr_scale = x;
     }
     if let Some(lr) = args.lr {
         config.lr_peak = lr;

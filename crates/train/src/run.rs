@@ -560,7 +560,7 @@ pub fn train_until(
                 projection = projection_optimizer.step(lr, projection, projection_grads);
             }
             if cross.lambda > 0.0 {
-                simsiam = simsiam_optimizer.step(lr, simsiam, simsiam_grads);
+                simsiam = simsiam_optimizer.step(lr * cross.head_lr_scale, simsiam, simsiam_grads);
             }
 
             if let Some(terms) = terms {
