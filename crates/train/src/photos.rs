@@ -296,9 +296,14 @@ pub fn photometric_loss(
             let row: Vec<f64> = host[i * k..(i + 1) * k].iter().map(|&v| v as f64).collect();
             let lm: Vec<[f32; 2]> =
                 batch.landmarks[i * 136..(i + 1) * 136].chunks_exact(2).map(|p| [p[0], p[1]]).collect();
-            term.evaluate(model, &batch.images[i], &camera, &lm, vertices, &row).ok()
+            match term.evaluate(model, &batch.images[i], &camera, &lm, vertices, &row) {
+                Ok(v) => Ok(Some(v)),
+                // The prediction left the view: this face sits the step out.
+                Err(facerecon_fit::FitError::Diverged(_)) => Ok(None),
+                Err(e) => Err(TrainError::Data(format!("the photometric term: {e}"))),
+            }
         })
-        .collect();
+        .collect::<Result<_, _>>()?;
     let mut gradient = vec![0f32; n * k];
     let (mut loss, mut l1, mut evaluated) = (0.0, 0.0, 0);
     for (i, v) in values.iter().enumerate() {

@@ -23,6 +23,13 @@ fn front() -> FrontEnd {
     FrontEnd::load_standard(facerecon_vision::landmarks::DEFAULT_MODEL_PATH.as_ref()).expect("front end")
 }
 
+/// burn seeds its generator per backend, for the whole process: a network built while a
+/// run starts would draw from the run's sequence. The tests that build networks take turns.
+fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    LOCK.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 fn tempdir(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("facerecon-photos-test-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
@@ -172,6 +179,7 @@ fn burn_gets_the_photometric_terms_gradient() {
 /// closer than the synthetic terms do, and the landmark term their landmarks.
 #[test]
 fn the_photo_losses_move_the_network_towards_the_photos() {
+    let _turn = one_at_a_time();
     let model = model();
     let dir = tempdir("run");
     write_photos(&dir, 6, 4);
@@ -205,6 +213,7 @@ fn the_photo_losses_move_the_network_towards_the_photos() {
 /// pixels (a mismatch of crop, scale or pixel convention would show as tens of pixels).
 #[test]
 fn the_released_encoder_agrees_with_the_photo_batchs_landmarks() {
+    let _turn = one_at_a_time();
     use facerecon_nn::{BurnEncoder, Encoder};
     let model = model();
     let dir = tempdir("frame");

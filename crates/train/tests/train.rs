@@ -17,6 +17,13 @@ fn model() -> &'static Arc<MorphableModel> {
     M.get_or_init(|| facerecon_model::ict::load_default().expect("default model (run scripts/setup)"))
 }
 
+/// burn seeds its generator per backend, for the whole process: two runs started at once
+/// would draw each other's initial weights. The tests that train take turns.
+fn one_run_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    LOCK.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 fn tempdir(name: &str) -> std::path::PathBuf {
     let d = std::env::temp_dir().join(format!("facerecon-train-test-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
@@ -53,6 +60,7 @@ fn burn_geometry_projects_landmarks_where_the_renderer_put_them() {
 
 #[test]
 fn a_short_tiny_run_learns_and_a_resumed_run_matches_an_uninterrupted_one() {
+    let _turn = one_run_at_a_time();
     let model = model();
     let mut config = TrainConfig::tiny(NetworkConfig::tiny(model).unwrap(), 24);
     // A fixed set of six faces without corruptions: the loop must fit what it sees.
@@ -126,6 +134,7 @@ fn a_short_tiny_run_learns_and_a_resumed_run_matches_an_uninterrupted_one() {
 /// compute what the run without the branch computes; the joined one must not.
 #[test]
 fn the_cross_pose_heads_warm_up_leaves_the_encoder_alone() {
+    let _turn = one_run_at_a_time();
     let model = model();
     let device = Device::default();
     let run = |name: &str, lambda: f64, head_only_until: u64| {
