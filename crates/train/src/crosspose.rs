@@ -38,7 +38,7 @@ pub struct CrossPose {
     #[serde(default)]
     pub head_only_until: u64,
     /// The head's learning rate as a multiple of the encoder's: a new head continuing
-    /// trained weights at their small final rate barely moves (ℓ_cf −0.01 → −0.04 in 100
+    /// trained weights at their small final rate barely moves (ℓ_cf −0.01 → −0.03 in 100
     /// steps at 1e-5; docs/bench/cross-pose-200-steps).
     #[serde(default = "one")]
     pub head_lr_scale: f64,

@@ -5,7 +5,7 @@
 //! facerecon-train --preset tiny --steps 200 --out runs/tiny     # minutes on 2 CPU cores
 //! facerecon-train --preset full --steps 100000 --out runs/v1    # the real network (GPU)
 //! facerecon-train --preset full --steps 120000 --init-weights runs/v1/encoder-f16.safetensors \
-//!     --lr 1e-5 --photos /data/my-photos --out runs/v1-photos   # stage 2 from stage 1
+//!     --photos /data/my-photos --out runs/v1-photos             # stage 2 from stage 1
 //! ```
 //!
 //! Running it again with the same folder and settings resumes from the last checkpoint.
