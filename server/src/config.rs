@@ -25,8 +25,9 @@ pub struct Config {
     /// default, for the default model), a weights file (`facerecon-train`'s
     /// `encoder-f16.safetensors`), or none (requests start from the landmark fit only).
     pub encoder: EncoderChoice,
-    /// Where the encoder runs: `cpu` (ONNX Runtime, the default) or `gpu` (burn's Vulkan
-    /// backend; servers built with `--features gpu`, decision 0901).
+    /// Where the encoder runs: `cpu` (ONNX Runtime, the default), `gpu` (burn's Vulkan
+    /// backend; servers built with `--features gpu`, decision 0901) or `wgsl` (the encoder's
+    /// own compute shaders on the first Vulkan GPU, every build; decision 0906).
     pub encoder_device: Compute,
     /// What the CPU encoder computes in: `fp32` (the default) or `int8` (needs the
     /// calibration file beside the weights, `<weights>.int8.json`; decision 0903).
@@ -223,8 +224,8 @@ pub struct Args {
     /// for the default model), a weights file, or `none` [default: released].
     #[arg(long, env = "FACERECON_ENCODER")]
     pub encoder: Option<EncoderChoice>,
-    /// Where the encoder runs: cpu (ONNX Runtime) or gpu (burn Vulkan; `--features gpu`)
-    /// [default: cpu].
+    /// Where the encoder runs: cpu (ONNX Runtime), gpu (burn Vulkan; `--features gpu`) or
+    /// wgsl (the encoder's own shaders on the first Vulkan GPU) [default: cpu].
     #[arg(long, env = "FACERECON_ENCODER_DEVICE")]
     pub encoder_device: Option<Compute>,
     /// What the CPU encoder computes in: fp32, or int8 with the calibration beside the
@@ -391,6 +392,11 @@ mod tests {
         c.validate().unwrap();
         let c = Config { encoder_device: Compute::Gpu, ..c };
         assert!(format!("{:#}", c.validate().unwrap_err()).contains("CPU"));
+        let c = Config { encoder_device: Compute::Wgsl, ..c };
+        assert!(format!("{:#}", c.validate().unwrap_err()).contains("CPU"));
+        // The shaders are in every build.
+        let args = Args::try_parse_from(["facerecon-server", "--encoder-device", "wgsl"]).unwrap();
+        args.resolve().unwrap().validate().unwrap();
         assert!(Args::try_parse_from(["facerecon-server", "--encoder-precision", "int4"]).is_err());
         // OTLP: a URL with a scheme and a host.
         for bad in ["collector:4317", "grpc://collector:4317", "http://", "not a url"] {

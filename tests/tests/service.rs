@@ -667,6 +667,17 @@ async fn the_encoder_start() {
     }
     s.stop().await.unwrap();
 
+    // The same weights on the encoder's own shaders (lavapipe here) give the same answer.
+    let config = Config { encoder_device: facerecon_nn::Compute::Wgsl, ..config };
+    let s = TestServer::start_with(config.clone(), facerecon_server::default_loader(&config)).await;
+    s.wait_serving(Duration::from_secs(120)).await;
+    let c = client(&s).await;
+    let r = c.reconstruct(with(enc(pb::Refine::None), photo(0))).await.unwrap();
+    let fit = r.faces[0].fit.as_ref().unwrap();
+    let d = want.identity.iter().zip(&fit.coefficients.identity).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
+    assert!(d < 1e-3, "server (wgsl) and in-process (burn) differ by {d}");
+    s.stop().await.unwrap();
+
     let bare = TestServer::start(Config::default()).await;
     let c = client(&bare).await;
     assert_eq!(code(c.reconstruct(with(enc(pb::Refine::None), photo(0))).await), Code::Unimplemented);

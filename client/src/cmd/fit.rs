@@ -39,8 +39,9 @@ pub struct FitArgs {
     /// `encoder-f16.safetensors`).
     #[arg(long)]
     encoder: Option<PathBuf>,
-    /// Where the encoder runs: `cpu` (ONNX Runtime) or `gpu` (burn's Vulkan backend, in a
-    /// build with `--features gpu`).
+    /// Where the encoder runs: `cpu` (ONNX Runtime), `gpu` (burn's Vulkan backend, in a
+    /// build with `--features gpu`) or `wgsl` (the encoder's own shaders on the first Vulkan
+    /// GPU).
     #[arg(long, default_value = "cpu")]
     encoder_device: facerecon_nn::Compute,
     /// What the CPU encoder computes in: `fp32`, or `int8` (needs `<weights>.int8.json`

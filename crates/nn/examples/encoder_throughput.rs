@@ -1,16 +1,19 @@
-//! Encoder throughput by batch size on one burn device: faces per second from decoded
+//! Encoder throughput by batch size on one device (`cpu`: burn Flex, `gpu`: burn Vulkan,
+//! `wgsl`: the encoder's own shaders on wgpu): faces per second from decoded
 //! 224-px crops (packed into a [`CropBatch`], uploaded, run, read back) to coefficient rows.
 //!
 //! ```text
 //! cargo run --release -p facerecon-nn --features gpu --example encoder_throughput -- \
 //!     --device gpu --batches 1,8,32,128,256 [--runs 15] [--weights W] [--model M]
+//! cargo run --release -p facerecon-nn --example encoder_throughput -- --device wgsl --batches 1,32,256 \
+//!     [--wide-from N]   # layers with ≥ N 128×128 tiles use them (0: all, default 264)
 //! ```
 //! Prints a Markdown table (medians after warm-up) and, with `--json F`, writes the figures.
 //! Speed does not depend on the weights' values: without `--weights` the network is new.
 
 use std::time::Instant;
 
-use facerecon_nn::{BurnEncoder, Compute, CropBatch, Encoder, EncoderNet, NetworkConfig};
+use facerecon_nn::{BurnEncoder, Compute, CropBatch, Encoder, EncoderNet, NetworkConfig, WgslEncoder};
 use facerecon_vision::crop::Bucket;
 use image::RgbImage;
 
@@ -32,17 +35,32 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .split(',')
         .map(str::parse)
         .collect::<Result<_, _>>()?;
-    let device = compute.device()?;
-    let encoder = match arg(&args, "--weights") {
-        Some(w) => BurnEncoder::load(std::path::Path::new(&w), device)?,
+    // The weights: a file, or a new network (speed does not depend on the values).
+    let flex = burn::tensor::Device::flex();
+    let (config, net) = match arg(&args, "--weights") {
+        Some(w) => facerecon_nn::weights::load(std::path::Path::new(&w), &flex)?,
         None => {
             let model = match arg(&args, "--model") {
                 Some(m) => std::sync::Arc::new(facerecon_model::MorphableModel::load(m)?),
                 None => facerecon_model::ict::load_default()?,
             };
             let config = NetworkConfig::full(&model)?;
-            let net = EncoderNet::new(&config, &device);
-            BurnEncoder::new(config, net, device)
+            let net = EncoderNet::new(&config, &flex);
+            (config, net)
+        }
+    };
+    let encoder: Box<dyn Encoder> = match compute {
+        Compute::Wgsl => {
+            let wide_from = arg(&args, "--wide-from").map_or(Ok(facerecon_nn::wgsl::WIDE_TILES_FROM), |s| s.parse())?;
+            Box::new(WgslEncoder::new(config, &net)?.with_wide_tiles_from(wide_from))
+        }
+        Compute::Cpu => Box::new(BurnEncoder::new(config, net, flex)),
+        Compute::Gpu => {
+            // The burn network moves to the GPU through its weights file's bytes.
+            let device = compute.device()?;
+            let bytes = facerecon_nn::weights::to_bytes(&net, &config, facerecon_nn::weights::Precision::F32)?;
+            let (config, net) = facerecon_nn::weights::from_bytes(&bytes, &device)?;
+            Box::new(BurnEncoder::new(config, net, device))
         }
     };
     let size = encoder.config().input_size;

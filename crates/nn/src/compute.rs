@@ -1,10 +1,12 @@
-//! Where the burn network runs: [`Compute`] names the choice a user makes (`cpu`, `gpu`)
-//! and turns it into a burn [`Device`].
+//! Where the encoder runs: [`Compute`] names the choice a user makes (`cpu`, `gpu`, `wgsl`)
+//! and, for the burn network, turns it into a burn [`Device`].
 //!
-//! The GPU is burn's Vulkan backend (feature `gpu`; DESIGN §7, `docs/decisions/0901-encoder-gpu.md`).
+//! `gpu` is burn's Vulkan backend (feature `gpu`; DESIGN §7, `docs/decisions/0901-encoder-gpu.md`).
 //! Builds without the feature keep the CPU only, and asking them for the GPU is an error
 //! that says so, not a silent fall-back. The CPU device is always burn's Flex backend,
 //! named explicitly: with `gpu` built in, burn's `Device::default()` would pick the GPU.
+//! `wgsl` is the encoder's own compute shaders on wgpu ([`crate::wgsl`], decision 0906):
+//! always built, inference only, so it has no burn device.
 
 use burn::tensor::Device;
 
@@ -20,6 +22,9 @@ pub enum Compute {
     /// burn's Vulkan backend on the first high-power GPU (`CUBECL_WGPU_DEFAULT_DEVICE`
     /// overrides the choice).
     Gpu,
+    /// The encoder's own WGSL shaders on the first Vulkan GPU (lavapipe where there is none;
+    /// `WGPU_ADAPTER_NAME` picks one). Inference only.
+    Wgsl,
 }
 
 impl Compute {
@@ -35,6 +40,9 @@ impl Compute {
             Compute::Gpu => Err(NnError::Config(
                 "this build has no GPU backend: rebuild with `--features gpu` (burn's Vulkan backend)".into(),
             )),
+            Compute::Wgsl => Err(NnError::Config(
+                "wgsl runs the encoder's own inference shaders, not a burn network: train on cpu or gpu".into(),
+            )),
         }
     }
 }
@@ -45,7 +53,8 @@ impl std::str::FromStr for Compute {
         match s.to_ascii_lowercase().as_str() {
             "cpu" => Ok(Compute::Cpu),
             "gpu" | "vulkan" => Ok(Compute::Gpu),
-            other => Err(NnError::Config(format!("unknown compute device {other:?} (cpu or gpu)"))),
+            "wgsl" => Ok(Compute::Wgsl),
+            other => Err(NnError::Config(format!("unknown compute device {other:?} (cpu, gpu or wgsl)"))),
         }
     }
 }
@@ -55,6 +64,7 @@ impl std::fmt::Display for Compute {
         f.write_str(match self {
             Compute::Cpu => "cpu",
             Compute::Gpu => "gpu",
+            Compute::Wgsl => "wgsl",
         })
     }
 }
@@ -65,11 +75,12 @@ mod tests {
 
     #[test]
     fn names_parse_and_print() {
-        for c in [Compute::Cpu, Compute::Gpu] {
+        for c in [Compute::Cpu, Compute::Gpu, Compute::Wgsl] {
             assert_eq!(c.to_string().parse::<Compute>().unwrap(), c);
         }
         assert!("tpu".parse::<Compute>().is_err());
         assert!(Compute::Cpu.device().is_ok());
         assert_eq!(Compute::Gpu.device().is_ok(), Compute::GPU_BUILT);
+        assert!(Compute::Wgsl.device().is_err());
     }
 }

@@ -20,22 +20,25 @@ use crate::network::EncoderNet;
 use crate::quantize::{Calibration, InferencePrecision};
 use crate::{Compute, NnError};
 
-/// Most crops in one batch (bounds the input tensor: 4096 × 3 × 224² floats ≈ 2.5 GB).
+/// Most crops in one batch (bounds the input: 4096 crops of 224² are 0.6 GB of bytes,
+/// 2.5 GB as the CPU paths' floats).
 pub const MAX_BATCH: usize = 4096;
 
-/// Crops ready for an encoder: `[N, 3, S, S]` RGB in [0, 1] (planar, row-major) and one
-/// bucket index per crop.
+/// Crops ready for an encoder: their RGB bytes as the front end made them (`[N, S, S, 3]`,
+/// row-major) and one bucket index per crop. Each path converts the bytes itself: the CPU
+/// paths to planar floats ([`CropBatch::pixels`]), the shaders on the GPU (a quarter of the
+/// upload).
 #[derive(Clone, Debug, Default)]
 pub struct CropBatch {
     size: usize,
-    pixels: Vec<f32>,
+    rgb: Vec<u8>,
     buckets: Vec<i64>,
 }
 
 impl CropBatch {
     /// An empty batch of `size`-pixel crops.
     pub fn new(size: usize) -> Self {
-        Self { size, pixels: Vec::new(), buckets: Vec::new() }
+        Self { size, rgb: Vec::new(), buckets: Vec::new() }
     }
 
     /// The front end's crops, in order.
@@ -61,13 +64,7 @@ impl CropBatch {
         if self.buckets.len() >= MAX_BATCH {
             return Err(NnError::Input(format!("more than {MAX_BATCH} crops in one batch")));
         }
-        let base = self.pixels.len();
-        self.pixels.resize(base + 3 * s * s, 0.0);
-        for (i, p) in image.pixels().enumerate() {
-            for c in 0..3 {
-                self.pixels[base + c * s * s + i] = p[c] as f32 / 255.0;
-            }
-        }
+        self.rgb.extend_from_slice(image.as_raw());
         self.buckets.push(bucket.index().unwrap_or(BUCKETS - 1) as i64);
         Ok(())
     }
@@ -84,9 +81,24 @@ impl CropBatch {
         self.size
     }
 
-    /// The planar pixels, `[N, 3, S, S]`.
-    pub fn pixels(&self) -> &[f32] {
-        &self.pixels
+    /// The crops' bytes, `[N, S, S, 3]`.
+    pub fn rgb(&self) -> &[u8] {
+        &self.rgb
+    }
+
+    /// The network's input: planar RGB in [0, 1], `[N, 3, S, S]`.
+    pub fn pixels(&self) -> Vec<f32> {
+        let plane = self.size * self.size;
+        let mut out = vec![0.0; self.rgb.len()];
+        for (k, crop) in self.rgb.chunks_exact(3 * plane).enumerate() {
+            let dst = &mut out[k * 3 * plane..(k + 1) * 3 * plane];
+            for (i, p) in crop.chunks_exact(3).enumerate() {
+                for c in 0..3 {
+                    dst[c * plane + i] = p[c] as f32 / 255.0;
+                }
+            }
+        }
+        out
     }
 
     pub fn buckets(&self) -> &[i64] {
@@ -96,7 +108,7 @@ impl CropBatch {
     /// The input tensors on `device`.
     pub fn tensors(&self, device: &Device) -> (Tensor<4>, Tensor<1, Int>) {
         let (n, s) = (self.len(), self.size);
-        let images = Tensor::from_data(TensorData::new(self.pixels.clone(), [n, 3, s, s]), device);
+        let images = Tensor::from_data(TensorData::new(self.pixels(), [n, 3, s, s]), device);
         let buckets = Tensor::from_data(TensorData::new(self.buckets.clone(), [n]), device);
         (images, buckets)
     }
@@ -178,8 +190,8 @@ impl Encoder for BurnEncoder {
 
 /// Loads a weights file as an encoder on `compute`: ONNX Runtime with `cpu_threads`
 /// intra-op threads on the CPU (the production CPU path; `precision` int8 reads the
-/// calibration beside the weights, [`crate::quantize::Calibration`]), or the burn network on
-/// the GPU (fp32 only).
+/// calibration beside the weights, [`crate::quantize::Calibration`]), the burn network on
+/// the GPU, or the encoder's own shaders ([`crate::wgsl`]); the last two in fp32 only.
 /// The GPU path runs one crop through the network before returning, so a machine without a
 /// usable GPU fails here with an error rather than on the first request (burn reports a
 /// missing adapter by panicking), and the first caller does not pay the kernels' compilation.
@@ -194,9 +206,10 @@ pub fn load(
             let runtime = OnnxRuntimeConfig { intra_op_threads: cpu_threads.max(1), ..Default::default() };
             Ok(Arc::new(OrtEncoder::load_with(path, &runtime, precision)?))
         }
-        Compute::Gpu if precision != InferencePrecision::Fp32 => {
-            Err(NnError::Config(format!("{precision} runs on the CPU path (ONNX Runtime); the GPU path is fp32")))
+        Compute::Gpu | Compute::Wgsl if precision != InferencePrecision::Fp32 => {
+            Err(NnError::Config(format!("{precision} runs on the CPU path (ONNX Runtime); the GPU paths are fp32")))
         }
+        Compute::Wgsl => Ok(Arc::new(crate::wgsl::WgslEncoder::load(path)?)),
         Compute::Gpu => {
             let encoder = BurnEncoder::load(path, compute.device()?)?;
             let size = encoder.config.input_size;
@@ -285,7 +298,7 @@ impl Encoder for OrtEncoder {
     fn run(&self, batch: &CropBatch) -> Result<Vec<f32>, NnError> {
         let (n, s) = (batch.len(), batch.size);
         let run = |e: ort::Error| NnError::Runtime(e.to_string());
-        let images = ort::value::Tensor::from_array(([n, 3, s, s], batch.pixels.clone())).map_err(run)?;
+        let images = ort::value::Tensor::from_array(([n, 3, s, s], batch.pixels())).map_err(run)?;
         let buckets = ort::value::Tensor::from_array(([n], batch.buckets.clone())).map_err(run)?;
         let mut session = self.session.lock().unwrap_or_else(|p| p.into_inner());
         let outputs = session

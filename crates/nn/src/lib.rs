@@ -7,8 +7,9 @@
 //! * [`network`] — the network in burn ([`EncoderNet`]), for training and GPU inference.
 //! * [`weights`] — safetensors files: tensors by module path, the configuration in the header.
 //! * [`onnx`] — export of a network to an ONNX graph (our own writer, op for op).
-//! * [`encoder`] — the [`Encoder`] trait, [`CropBatch`], and the two inference paths:
+//! * [`encoder`] — the [`Encoder`] trait, [`CropBatch`], and the burn and ONNX Runtime paths:
 //!   [`BurnEncoder`] and [`OrtEncoder`] (ONNX Runtime, the CPU path).
+//! * [`wgsl`] — the GPU path through our own compute shaders on wgpu ([`WgslEncoder`]).
 //! * [`quantize`] — int8 on the CPU: batch-norm folding, weight and activation
 //!   quantization, calibration ranges ([`InferencePrecision`]).
 //! * [`released`] — where the weights released with this version are.
@@ -21,12 +22,14 @@ pub mod onnx;
 pub mod quantize;
 pub mod released;
 pub mod weights;
+pub mod wgsl;
 
 pub use compute::Compute;
 pub use config::{Head, NetworkConfig};
 pub use encoder::{BurnEncoder, CropBatch, Encoder, OrtEncoder};
 pub use network::{EncoderNet, EncoderOutput};
 pub use quantize::InferencePrecision;
+pub use wgsl::WgslEncoder;
 
 /// Why the encoder could not be built, loaded or run.
 #[derive(Debug, thiserror::Error)]

@@ -208,7 +208,7 @@ pub fn calibrate<'b>(
             )));
         }
         let (n, s) = (batch.len(), batch.size());
-        let images = ort::value::Tensor::from_array(([n, 3, s, s], batch.pixels().to_vec())).map_err(run)?;
+        let images = ort::value::Tensor::from_array(([n, 3, s, s], batch.pixels())).map_err(run)?;
         let buckets = ort::value::Tensor::from_array(([n], batch.buckets().to_vec())).map_err(run)?;
         let outputs = session
             .run(ort::inputs![crate::onnx::INPUT_IMAGES => images, crate::onnx::INPUT_BUCKETS => buckets])

@@ -181,6 +181,17 @@ pub struct Renderer {
     uncaptured: Arc<Mutex<Vec<String>>>,
 }
 
+/// The Vulkan adapter every GPU part of the product runs on (the renderer, the encoder's
+/// shaders), chosen by [`select_adapter`]'s rules.
+pub fn vulkan_adapter() -> Result<wgpu::Adapter, RenderError> {
+    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
+        backends: wgpu::Backends::VULKAN,
+        ..wgpu::InstanceDescriptor::new_without_display_handle_from_env()
+    });
+    let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::VULKAN));
+    select_adapter(adapters)
+}
+
 /// Picks the adapter: the one whose name contains `WGPU_ADAPTER_NAME` (case-insensitive)
 /// when set, else the first that is not a CPU implementation, else the first.
 fn select_adapter(adapters: Vec<wgpu::Adapter>) -> Result<wgpu::Adapter, RenderError> {
@@ -207,12 +218,7 @@ impl Renderer {
     }
 
     pub fn with_batching(batching: Batching) -> Result<Self, RenderError> {
-        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
-            backends: wgpu::Backends::VULKAN,
-            ..wgpu::InstanceDescriptor::new_without_display_handle_from_env()
-        });
-        let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::VULKAN));
-        let adapter = select_adapter(adapters)?;
+        let adapter = vulkan_adapter()?;
         let info = adapter.get_info();
         let al = adapter.limits();
         let limits = wgpu::Limits {
