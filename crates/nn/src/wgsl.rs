@@ -39,8 +39,8 @@ const TILE_8: &str = "const R: u32 = 8u;";
 /// ([`WgslEncoder::with_wide_tiles_from`] changes it).
 pub const WIDE_TILES_FROM: usize = 264;
 
-/// Most samples in one pass (the stem's 64-row tiles of 112² outputs stay within one
-/// dispatch dimension's 65,535 workgroups; larger batches run in chunks).
+/// Most samples in one pass (larger batches run in chunks; smaller chunks where the device's
+/// buffer bindings or a dispatch dimension's 65,535 workgroups ask for them).
 const MAX_CHUNK: usize = 256;
 
 /// One dispatch's parameters, `Params` in `encoder.wgsl`.
@@ -405,7 +405,12 @@ impl WgslEncoder {
         };
         // The largest activation per sample decides how many samples a buffer binding holds.
         let per_sample = gpu.largest_activation(&config) as u64 * 4;
-        let chunk = (gpu.max_binding / per_sample.max(1)).min(MAX_CHUNK as u64) as usize;
+        // And a layer's 64-row tiles must fit one dispatch dimension (65,535 workgroups): the
+        // stem has the most output pixels per sample.
+        let stem_rows = out_size(config.input_size, &gpu.stem).pow(2);
+        let chunk = (gpu.max_binding / per_sample.max(1))
+            .min(MAX_CHUNK as u64)
+            .min((65_535 * 64 / stem_rows.max(1)) as u64) as usize;
         if chunk == 0 {
             return Err(NnError::Device(format!(
                 "{}: one sample's activations ({per_sample} bytes) exceed the device's largest buffer binding ({})",
