@@ -89,12 +89,13 @@ impl CropBatch {
     /// The network's input: planar RGB in [0, 1], `[N, 3, S, S]`.
     pub fn pixels(&self) -> Vec<f32> {
         let plane = self.size * self.size;
+        let scale: [f32; 256] = std::array::from_fn(|v| v as f32 / 255.0);
         let mut out = vec![0.0; self.rgb.len()];
-        for (k, crop) in self.rgb.chunks_exact(3 * plane).enumerate() {
-            let dst = &mut out[k * 3 * plane..(k + 1) * 3 * plane];
-            for (i, p) in crop.chunks_exact(3).enumerate() {
-                for c in 0..3 {
-                    dst[c * plane + i] = p[c] as f32 / 255.0;
+        for (crop, dst) in self.rgb.chunks_exact(3 * plane).zip(out.chunks_exact_mut(3 * plane)) {
+            // One plane at a time: the writes run in order.
+            for (c, dst) in dst.chunks_exact_mut(plane).enumerate() {
+                for (d, p) in dst.iter_mut().zip(crop[c..].iter().step_by(3)) {
+                    *d = scale[*p as usize];
                 }
             }
         }
