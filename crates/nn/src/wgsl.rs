@@ -4,17 +4,18 @@
 //!
 //! The network is the one [`crate::network`] defines and [`crate::onnx`] exports, op for op,
 //! with each batch norm folded into its convolution. Activations stay on the device in NHWC
-//! order; one batch is one command buffer of about 40 dispatches (`encoder.wgsl`):
+//! order; one batch is one command buffer of 36 dispatches for ResNet-18 (`encoder.wgsl`):
 //!
 //! * `prepare` (`prepare.wgsl`): the crops' RGB bytes, uploaded as they are (a quarter of
 //!   the floats' size) → NHWC floats, `(x/255 − 0.5) / 0.25`;
-//! * `conv`: every convolution and dense layer as one tiled implicit GEMM whose epilogue
+//! * `conv`: every convolution and dense layer as one tiled implicit GEMM (64 × 64 tiles, or
+//!   128 × 128 where a layer has enough of them, [`WIDE_TILES_FROM`]) whose epilogue
 //!   fuses the bias, ReLU, the resolution-aware residual `relu(skip + α_b·branch)` (α read
 //!   per sample) and each head's output map (and the expression head's sigmoid);
 //! * `max_pool` (3×3, stride 2) and `mean_pool` (global average).
 //!
-//! Weights are uploaded once; the activation buffers of the last batch size are kept. Batches
-//! larger than the device's buffer limits allow run in chunks.
+//! Weights are uploaded once; the activation buffers of the largest batch seen are kept, with
+//! each batch size's dispatches. Batches larger than the device's limits allow run in chunks.
 
 use std::sync::{Arc, Mutex};
 
