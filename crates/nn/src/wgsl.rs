@@ -173,10 +173,6 @@ pub struct WgslEncoder {
     plan: Mutex<Option<Plan>>,
 }
 
-fn device_error(e: impl std::fmt::Display) -> NnError {
-    NnError::Device(e.to_string())
-}
-
 impl WgslEncoder {
     /// Loads a weights file onto the first Vulkan GPU (`WGPU_ADAPTER_NAME` picks another;
     /// lavapipe where there is none).
@@ -188,29 +184,14 @@ impl WgslEncoder {
     /// Uploads `net`'s weights (batch norms folded) to the device.
     pub fn new(config: NetworkConfig, net: &EncoderNet) -> Result<Self, NnError> {
         config.validate()?;
-        let adapter = facerecon_raster::gpu::vulkan_adapter().map_err(device_error)?;
-        let info = adapter.get_info();
-        let al = adapter.limits();
-        let limits = wgpu::Limits {
-            max_storage_buffer_binding_size: al.max_storage_buffer_binding_size,
-            max_buffer_size: al.max_buffer_size,
-            max_storage_buffers_per_shader_stage: 6,
-            ..wgpu::Limits::default()
-        };
-        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
-            label: Some("facerecon-nn"),
-            required_limits: limits.clone(),
-            memory_hints: wgpu::MemoryHints::Performance,
-            ..Default::default()
-        }))
-        .map_err(|e| NnError::Device(format!("{} ({:?}): {e}", info.name, info.backend)))?;
-        let uncaptured = Arc::new(Mutex::new(Vec::new()));
-        let sink = uncaptured.clone();
-        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
-            if let Ok(mut v) = sink.lock() {
-                v.push(e.to_string());
-            }
-        }));
+        let facerecon_raster::gpu::VulkanDevice { device, queue, info, limits, uncaptured } =
+            facerecon_raster::gpu::open_vulkan_device("facerecon-nn", |adapter| wgpu::Limits {
+                max_storage_buffer_binding_size: adapter.max_storage_buffer_binding_size,
+                max_buffer_size: adapter.max_buffer_size,
+                max_storage_buffers_per_shader_stage: 6,
+                ..wgpu::Limits::default()
+            })
+            .map_err(|e| NnError::Device(e.to_string()))?;
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("encoder.wgsl"),

@@ -192,6 +192,43 @@ pub fn vulkan_adapter() -> Result<wgpu::Adapter, RenderError> {
     select_adapter(adapters)
 }
 
+/// A Vulkan device opened by [`open_vulkan_device`], with what its users need beside it.
+pub struct VulkanDevice {
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    pub info: wgpu::AdapterInfo,
+    /// The limits the device was opened with.
+    pub limits: wgpu::Limits,
+    /// Errors that no error scope caught (the handler is a backstop); drained by their users.
+    pub uncaptured: Arc<Mutex<Vec<String>>>,
+}
+
+/// Opens a device on [`vulkan_adapter`] with the limits `limits` makes from the adapter's own,
+/// and an uncaptured-error handler that collects into [`VulkanDevice::uncaptured`].
+pub fn open_vulkan_device(
+    label: &str,
+    limits: impl FnOnce(&wgpu::Limits) -> wgpu::Limits,
+) -> Result<VulkanDevice, RenderError> {
+    let adapter = vulkan_adapter()?;
+    let info = adapter.get_info();
+    let limits = limits(&adapter.limits());
+    let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+        label: Some(label),
+        required_limits: limits.clone(),
+        memory_hints: wgpu::MemoryHints::Performance,
+        ..Default::default()
+    }))
+    .map_err(|e| RenderError::Device(format!("{} ({:?}): {e}", info.name, info.backend)))?;
+    let uncaptured = Arc::new(Mutex::new(Vec::new()));
+    let sink = uncaptured.clone();
+    device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+        if let Ok(mut v) = sink.lock() {
+            v.push(e.to_string());
+        }
+    }));
+    Ok(VulkanDevice { device, queue, info, limits, uncaptured })
+}
+
 /// Picks the adapter: the one whose name contains `WGPU_ADAPTER_NAME` (case-insensitive)
 /// when set, else the first that is not a CPU implementation, else the first.
 fn select_adapter(adapters: Vec<wgpu::Adapter>) -> Result<wgpu::Adapter, RenderError> {
@@ -218,31 +255,14 @@ impl Renderer {
     }
 
     pub fn with_batching(batching: Batching) -> Result<Self, RenderError> {
-        let adapter = vulkan_adapter()?;
-        let info = adapter.get_info();
-        let al = adapter.limits();
-        let limits = wgpu::Limits {
-            max_texture_dimension_2d: al.max_texture_dimension_2d,
-            max_texture_array_layers: al.max_texture_array_layers,
-            max_storage_buffer_binding_size: al.max_storage_buffer_binding_size,
-            max_buffer_size: al.max_buffer_size,
-            ..wgpu::Limits::default()
-        };
-        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
-            label: Some("facerecon-raster"),
-            required_limits: limits.clone(),
-            memory_hints: wgpu::MemoryHints::Performance,
-            ..Default::default()
-        }))
-        .map_err(|e| RenderError::Device(format!("{} ({:?}): {e}", info.name, info.backend)))?;
-        let uncaptured = Arc::new(Mutex::new(Vec::new()));
-        let sink = uncaptured.clone();
-        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
-            if let Ok(mut v) = sink.lock() {
-                v.push(e.to_string());
-            }
-        }));
-
+        let VulkanDevice { device, queue, info, limits, uncaptured } =
+            open_vulkan_device("facerecon-raster", |adapter| wgpu::Limits {
+                max_texture_dimension_2d: adapter.max_texture_dimension_2d,
+                max_texture_array_layers: adapter.max_texture_array_layers,
+                max_storage_buffer_binding_size: adapter.max_storage_buffer_binding_size,
+                max_buffer_size: adapter.max_buffer_size,
+                ..wgpu::Limits::default()
+            })?;
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let vis_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("visibility.wgsl"),
