@@ -653,8 +653,7 @@ impl Gpu {
             .dispatches
             .get(&buckets.len())
             .ok_or_else(|| NnError::Device(format!("no dispatches recorded for a batch of {}", buckets.len())))?;
-        let scope_val = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let scope_oom = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let scopes = facerecon_raster::gpu::ErrorScopes::push(&self.device);
         if !rgb.len().is_multiple_of(4) {
             // Whole words only (a crop side is a multiple of 32, so this does not happen).
             let mut padded = rgb.to_vec();
@@ -683,43 +682,10 @@ impl Gpu {
         let bytes = (out_len * 4) as u64;
         enc.copy_buffer_to_buffer(&plan.output, 0, &plan.readback, 0, bytes);
         self.queue.submit([enc.finish()]);
-        let slice = plan.readback.slice(..bytes);
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        let polled = self.device.poll(wgpu::PollType::wait_indefinitely());
-        // Scopes pop in reverse order of pushing.
-        let oom = pollster::block_on(scope_oom.pop());
-        let val = pollster::block_on(scope_val.pop());
-        let uncaptured: Vec<String> = self.uncaptured.lock().map(|mut v| std::mem::take(&mut *v)).unwrap_or_default();
-        let mapped = rx.try_recv();
-        let fail = |msg: String| {
-            if matches!(mapped, Ok(Ok(()))) {
-                plan.readback.unmap();
-            }
-            Err(NnError::Device(msg))
-        };
-        if let Some(e) = val.or(oom) {
-            return fail(e.to_string());
-        }
-        if !uncaptured.is_empty() {
-            return fail(uncaptured.join("; "));
-        }
-        if let Err(e) = polled {
-            return fail(format!("waiting for the device: {e}"));
-        }
-        match &mapped {
-            Ok(Ok(())) => {}
-            Ok(Err(e)) => return fail(format!("mapping the read-back buffer: {e}")),
-            Err(_) => return fail("the read-back buffer was not mapped after waiting".into()),
-        }
-        let out = {
-            let view = slice.get_mapped_range().map_err(|e| NnError::Device(format!("reading back: {e}")))?;
-            bytemuck::cast_slice::<u8, f32>(&view).to_vec()
-        };
-        plan.readback.unmap();
-        Ok(out)
+        facerecon_raster::gpu::read_back(&self.device, &self.uncaptured, scopes, &plan.readback, bytes, |view| {
+            bytemuck::cast_slice::<u8, f32>(view).to_vec()
+        })
+        .map_err(NnError::Device)
     }
 }
 

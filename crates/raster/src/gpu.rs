@@ -229,6 +229,70 @@ pub fn open_vulkan_device(
     Ok(VulkanDevice { device, queue, info, limits, uncaptured })
 }
 
+/// Error scopes around one submission, pushed out-of-memory first, then validation
+/// ([`ErrorScopes::push`]); [`read_back`] pops them in reverse.
+pub struct ErrorScopes {
+    oom: wgpu::ErrorScopeGuard,
+    validation: wgpu::ErrorScopeGuard,
+}
+
+impl ErrorScopes {
+    pub fn push(device: &wgpu::Device) -> Self {
+        let oom = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let validation = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        Self { oom, validation }
+    }
+}
+
+/// Waits for the work submitted under `scopes` and maps the first `bytes` of `buffer`
+/// (`MAP_READ`): an error in either scope, an uncaptured error, a failed wait or mapping is
+/// one message; otherwise `read` sees the mapped bytes. The buffer is unmapped either way.
+pub fn read_back<T>(
+    device: &wgpu::Device,
+    uncaptured: &Mutex<Vec<String>>,
+    scopes: ErrorScopes,
+    buffer: &wgpu::Buffer,
+    bytes: u64,
+    read: impl FnOnce(&[u8]) -> T,
+) -> Result<T, String> {
+    let slice = buffer.slice(..bytes);
+    let (tx, rx) = std::sync::mpsc::channel();
+    slice.map_async(wgpu::MapMode::Read, move |r| {
+        let _ = tx.send(r);
+    });
+    let polled = device.poll(wgpu::PollType::wait_indefinitely());
+    let val = pollster::block_on(scopes.validation.pop());
+    let oom = pollster::block_on(scopes.oom.pop());
+    let uncaptured: Vec<String> = uncaptured.lock().map(|mut v| std::mem::take(&mut *v)).unwrap_or_default();
+    let mapped = rx.try_recv();
+    let fail = |msg: String| {
+        if matches!(mapped, Ok(Ok(()))) {
+            buffer.unmap();
+        }
+        Err(msg)
+    };
+    if let Some(e) = val.or(oom) {
+        return fail(e.to_string());
+    }
+    if !uncaptured.is_empty() {
+        return fail(uncaptured.join("; "));
+    }
+    if let Err(e) = polled {
+        return fail(format!("waiting for the device: {e}"));
+    }
+    match &mapped {
+        Ok(Ok(())) => {}
+        Ok(Err(e)) => return fail(format!("mapping the read-back buffer: {e}")),
+        Err(_) => return fail("the read-back buffer was not mapped after waiting".into()),
+    }
+    let out = match slice.get_mapped_range() {
+        Ok(view) => Ok(read(&view)),
+        Err(e) => Err(format!("reading back: {e}")),
+    };
+    buffer.unmap();
+    out
+}
+
 /// Picks the adapter: the one whose name contains `WGPU_ADAPTER_NAME` (case-insensitive)
 /// when set, else the first that is not a CPU implementation, else the first.
 fn select_adapter(adapters: Vec<wgpu::Adapter>) -> Result<wgpu::Adapter, RenderError> {
@@ -515,8 +579,7 @@ impl Renderer {
         let out_bytes = out_off as u64 * PIXEL_BYTES;
         let max_bytes = self.max_buffer_bytes();
 
-        let scope_oom = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
-        let scope_val = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let scopes = ErrorScopes::push(&self.device);
 
         // Grow resources if needed (the bind group follows them). Targets are also
         // recreated when much larger than needed: every render pass clears a whole layer.
@@ -622,41 +685,8 @@ impl Renderer {
         enc.copy_buffer_to_buffer(self.pixel_buf.get(), 0, self.readback.get(), 0, out_bytes);
         self.queue.submit([enc.finish()]);
 
-        let readback = self.readback.get();
-        let slice = readback.slice(..out_bytes);
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        let polled = self.device.poll(wgpu::PollType::wait_indefinitely());
-        let val = pollster::block_on(scope_val.pop());
-        let oom = pollster::block_on(scope_oom.pop());
-        let uncaptured: Vec<String> = self.uncaptured.lock().map(|mut v| std::mem::take(&mut *v)).unwrap_or_default();
-        let mapped = rx.try_recv();
-        let fail = |msg: String| {
-            if matches!(mapped, Ok(Ok(()))) {
-                readback.unmap();
-            }
-            Err(RenderError::Gpu(msg))
-        };
-        if let Some(e) = val.or(oom) {
-            return fail(e.to_string());
-        }
-        if !uncaptured.is_empty() {
-            return fail(uncaptured.join("; "));
-        }
-        if let Err(e) = polled {
-            return fail(format!("waiting for the device: {e}"));
-        }
-        match &mapped {
-            Ok(Ok(())) => {}
-            Ok(Err(e)) => return fail(format!("mapping the readback buffer: {e}")),
-            Err(_) => return fail("readback was not mapped after waiting".into()),
-        }
-
-        let frames = {
-            let view = slice.get_mapped_range().map_err(|e| RenderError::Gpu(format!("reading back: {e}")))?;
-            let pixels: &[GpuPixel] = bytemuck::cast_slice(&view);
+        let frames = read_back(&self.device, &self.uncaptured, scopes, self.readback.get(), out_bytes, |view| {
+            let pixels: &[GpuPixel] = bytemuck::cast_slice(view);
             jobs.iter()
                 .zip(&gjobs)
                 .map(|(j, g)| {
@@ -676,8 +706,8 @@ impl Renderer {
                     Frame { visibility: vb, color, normal }
                 })
                 .collect()
-        };
-        readback.unmap();
+        })
+        .map_err(RenderError::Gpu)?;
         Ok(frames)
     }
 }
